@@ -1,0 +1,443 @@
+"""The engine model as a user sees it: ``F(w, theta) -> (x_s, x_v)`` on batches.
+
+>>> from engine_model import EngineModel
+>>> m = EngineModel()                       # builds, compiles (cached on disk) and tabulates
+>>> df = m.evaluate(pd.DataFrame({"alt": [0], "Mach": [0], "TRA": [100], "T2": [518.67]}))
+>>> df[["T30", "Wf", "converged"]]
+
+Steady state. The cycle of :mod:`turbofan` is a residual system ``r(x; w, theta, p) = 0``;
+a batch of points is solved by Newton's method with the exact Jacobian ``dr/dx`` (CasADi
+AD), compiled to C and evaluated over the batch with CasADi's thread map. Every point has
+its own step control (step limits per unknown, backtracking when the residual grows) and
+leaves the loop when ``max |r| < tol``; a point still above ``tol`` after ``max_iter``
+iterations is returned with ``converged = False`` and its outputs set to NaN, never as a
+valid number.
+
+Starting guesses come from a table over (demanded corrected fan speed, Mach) that the model
+fills by continuation when it is built: by similarity the corrected operating point of a
+turbofan depends mainly on those two (T40 is stored as T40/T2). A time series can instead be
+warm-started from its previous solution (:meth:`EngineModel.solve_series`).
+
+Sensitivities ``d(outputs)/d(theta)`` and ``d(outputs)/d(w)`` at the solution are exact, by the
+implicit function theorem on the residual system:
+``dy/dq = dy/dq|_x - dy/dx (dr/dx)^-1 dr/dq``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import pandas as pd
+
+from . import atmosphere
+from .channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES
+from .codegen import compile_functions
+from .design import EngineDesign, design_engine
+from .effects import EffectSet
+from .turbofan import N_UNKNOWNS, UNKNOWN_NAMES, X_DESIGN, cycle, imperial_outputs
+from .validation import InputError, check_columns, check_theta, check_w
+
+# step limits per unknown (scaled units) for the damped Newton iteration
+_STEP_LIMIT = np.array([1.0, 1.0, 1.0, 0.08, 0.15, 0.25, 0.25])
+_TABLE_PCT = np.linspace(60.0, 104.0, 23)
+_TABLE_MACH = np.linspace(0.0, 0.9, 10)
+
+
+@dataclass
+class SolveResult:
+    x: np.ndarray  # (N, 7) unknowns
+    converged: np.ndarray  # (N,) bool
+    residual_norm: np.ndarray  # (N,) max |r| (scaled residuals)
+    iterations: np.ndarray  # (N,) Newton iterations used
+
+
+@dataclass(frozen=True)
+class ResidualSystem:
+    """The steady state as equations, for optimisers that solve many points at once.
+
+    ``residual(x, w, theta, p)`` (7 scaled residuals) and ``outputs(x, w, theta, p)`` (every
+    channel of :data:`channels.OUTPUT_NAMES`, N-CMAPSS units) are CasADi Functions of the
+    unknowns ``x`` (names in ``unknown_names``), so that e.g. a moving-horizon estimator can
+    make ``x`` at every sample decision variables with ``residual == 0`` as constraints.
+    """
+
+    unknown_names: tuple
+    output_names: tuple
+    param_names: tuple
+    x_design: np.ndarray
+    residual: ca.Function
+    outputs: ca.Function
+    guess: object  # callable (w (N,4)) -> x0 (N,7)
+
+
+class EngineModel:
+    """Two-spool turbofan steady-state model with exact derivatives.
+
+    Parameters
+    ----------
+    design : EngineDesign, optional
+        Design point and maps; default :func:`design.design_engine()`.
+    effects : sequence of effects.Effect, optional
+        Optional physical effects built into the symbolic model; their parameters become the
+        vector ``p`` (names in :attr:`param_names`).
+    compiled : bool
+        Generate and compile C (cached on disk) for the hot path; otherwise CasADi's virtual
+        machine evaluates the same expression graph.
+    n_threads : int, optional
+        Threads for batch evaluation (default: all cores).
+    """
+
+    def __init__(self, design: EngineDesign | None = None, effects=(), compiled: bool = True,
+                 n_threads: int | None = None):
+        self.design = design or design_engine()
+        self.effects = EffectSet(effects)
+        self.compiled = compiled
+        self.n_threads = max(1, n_threads or os.cpu_count() or 1)
+        self.param_names = self.effects.param_names
+        self.p_default = self.effects.defaults
+        self._build()
+        self._maps: dict = {}
+        self._build_table()
+
+    # ------------------------------------------------------------------ construction
+    def _build(self):
+        x = ca.SX.sym("x", N_UNKNOWNS)
+        w = ca.SX.sym("w", len(W_NAMES))
+        th = ca.SX.sym("theta", len(THETA_NAMES))
+        p = ca.SX.sym("p", len(self.param_names))
+        hook = self.effects.hook(p, w)
+        res, st = cycle(self.design, w, th, x, hook)
+        out = imperial_outputs(st, hook)
+        y = ca.vertcat(*[out[k] for k in OUTPUT_NAMES])
+        self.stations_expr = st
+        J = ca.jacobian(res, x)
+        dx = -ca.solve(J, res)
+        f_res = ca.Function("hyprog_residual", [x, w, th, p], [res])
+        f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y])
+        f_step = ca.Function("hyprog_newton_step", [x, w, th, p], [dx, res])
+        # exact sensitivities by the implicit function theorem
+        Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w)))
+        dy_dx = ca.jacobian(y, x)
+        dth = ca.jacobian(y, th) - dy_dx @ Jinv_r[:, : th.numel()]
+        dw = ca.jacobian(y, w) - dy_dx @ Jinv_r[:, th.numel():]
+        f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], [dth, dw])
+        self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
+        self._symbolic = dict(residual=f_res, outputs=f_out, step=f_step, sens=f_sens)
+        if self.compiled:
+            name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
+            fs = compile_functions(name, [f_res, f_out, f_step, f_sens])
+            self._f = dict(residual=fs[f_res.name()], outputs=fs[f_out.name()],
+                           step=fs[f_step.name()], sens=fs[f_sens.name()])
+        else:
+            self._f = dict(self._symbolic)
+
+    def _mapped(self, key, n):
+        """A thread-mapped version of function ``key`` for batches padded to size ``n``."""
+        cache_key = (key, n)
+        if cache_key not in self._maps:
+            f = self._f[key]
+            if n >= 2 * self.n_threads and self.n_threads > 1:
+                self._maps[cache_key] = f.map(n, "thread", self.n_threads)
+            else:
+                self._maps[cache_key] = f.map(n, "serial")
+        return self._maps[cache_key]
+
+    @staticmethod
+    def _bucket(n):
+        return max(8, 1 << int(np.ceil(np.log2(max(n, 1)))))
+
+    def _call(self, key, *args):
+        """Evaluate function ``key`` column-wise on (k, N) arrays; pads N to a bucket size."""
+        n = args[0].shape[1]
+        nb = self._bucket(n)
+        padded = []
+        for a in args:
+            if a.shape[1] < nb:
+                a = np.concatenate([a, np.repeat(a[:, -1:], nb - a.shape[1], axis=1)], axis=1)
+            padded.append(a)
+        outs = self._mapped(key, nb)(*padded)
+        if not isinstance(outs, (list, tuple)):
+            outs = [outs]
+        return [np.asarray(o)[:, :n] for o in outs]
+
+    def _build_table(self):
+        """Fill the starting-guess table by continuation over (PCNfR_dmd, Mach) at SLS ISA."""
+        d = self.design
+        n_p, n_m = len(_TABLE_PCT), len(_TABLE_MACH)
+        table = np.zeros((n_p, n_m, N_UNKNOWNS))
+        i_des = int(np.argmin(np.abs(_TABLE_PCT - 100.0)))
+        order = list(range(i_des, n_p)) + list(range(i_des - 1, -1, -1))
+        tra_of = self._tra_from_pct
+        x_prev_col = np.array(X_DESIGN, float)
+        for j, mach in enumerate(_TABLE_MACH):
+            T2 = float(atmosphere.t2_from_flight(0.0, mach)) * 1.8
+            x_start = x_prev_col.copy()
+            x_prev = x_start
+            for k, i in enumerate(order):
+                if i == i_des - 1:
+                    x_prev = table[i_des, j]
+                w = np.array([[0.0, mach, tra_of(_TABLE_PCT[i]), T2]])
+                r = self._newton(w, np.zeros((1, 10)), x_prev[None, :], max_iter=60)
+                if not r.converged[0]:
+                    r = self._continuation(w[0], x_prev, np.zeros(10))
+                table[i, j] = r.x[0]
+                x_prev = r.x[0]
+                if k == 0:
+                    x_prev_col = r.x[0]
+        T2s = np.array([float(atmosphere.t2_from_flight(0.0, m)) * 1.8 for m in _TABLE_MACH])
+        table[:, :, 4] *= d.T40_des * 1.8 / T2s[None, :]  # store T40/T2
+        self._table = table
+
+    def _tra_from_pct(self, pct):
+        (t0, n0), (t1, n1) = self.design.spec.tra_schedule
+        return t0 + (pct - n0) * (t1 - t0) / (n1 - n0)
+
+    def _continuation(self, w_target, x_start, theta, steps=20):
+        w0 = np.array([0.0, 0.0, 100.0, 518.67])
+        x = x_start
+        for lam in np.linspace(0, 1, steps + 1)[1:]:
+            r = self._newton((w0 + lam * (w_target - w0))[None, :], theta[None, :] * lam,
+                             x[None, :], max_iter=60)
+            x = r.x[0]
+        return r
+
+    def initial_guess(self, w: np.ndarray) -> np.ndarray:
+        """Starting unknowns (N, 7) for operating points ``w`` (N, 4), from the table."""
+        pct = self.design.nf_demand_pct(w[:, 2])
+        fp = np.clip((pct - _TABLE_PCT[0]) / (_TABLE_PCT[1] - _TABLE_PCT[0]), 0, len(_TABLE_PCT) - 1.000001)
+        fm = np.clip(w[:, 1] / (_TABLE_MACH[1] - _TABLE_MACH[0]), 0, len(_TABLE_MACH) - 1.000001)
+        i, j = fp.astype(int), fm.astype(int)
+        a, b = (fp - i)[:, None], (fm - j)[:, None]
+        t = self._table
+        x = ((1 - a) * (1 - b) * t[i, j] + a * (1 - b) * t[i + 1, j] + (1 - a) * b * t[i, j + 1]
+             + a * b * t[i + 1, j + 1])
+        x[:, 4] *= w[:, 3] / (self.design.T40_des * 1.8)
+        return x
+
+    # ------------------------------------------------------------------ solving
+    def _newton(self, w, theta, x0, p=None, tol=1e-10, max_iter=30):
+        n = len(w)
+        p = self._p_matrix(p, n)
+        x = np.array(x0, float).copy()
+        x_old = x.copy()
+        dx_old = np.zeros_like(x)
+        alpha = np.ones(n)
+        rn_old = np.full(n, np.inf)
+        rn_final = np.full(n, np.inf)
+        conv = np.zeros(n, bool)
+        iters = np.zeros(n, int)
+        active = np.arange(n)
+        wT, thT, pT = w.T.copy(), theta.T.copy(), p.T.copy()
+        for it in range(max_iter + 1):
+            if active.size == 0:
+                break
+            dx, r = self._call("step", x[active].T, wT[:, active], thT[:, active], pT[:, active])
+            dx, r = dx.T, r.T
+            rn = np.abs(r).max(axis=1)
+            rn[~np.isfinite(rn)] = np.inf
+            done = rn < tol
+            idx_done = active[done]
+            conv[idx_done] = True
+            rn_final[idx_done] = rn[done]
+            iters[idx_done] = it
+            if it == max_iter:
+                rn_final[active[~done]] = rn[~done]
+                iters[active[~done]] = it
+                break
+            keep = ~done
+            act, rn, dx = active[keep], rn[keep], dx[keep]
+            worse = (rn >= rn_old[act]) | ~np.all(np.isfinite(dx), axis=1)
+            ok = ~worse
+            a_ok = act[ok]
+            lim = np.min(_STEP_LIMIT / np.maximum(np.abs(dx[ok]), 1e-300), axis=1)
+            step_a = np.minimum(1.0, lim)
+            x_old[a_ok] = x[a_ok]
+            dx_old[a_ok] = dx[ok]
+            alpha[a_ok] = step_a
+            rn_old[a_ok] = rn[ok]
+            x[a_ok] = x[a_ok] + step_a[:, None] * dx[ok]
+            a_bad = act[worse]
+            alpha[a_bad] *= 0.5
+            x[a_bad] = x_old[a_bad] + alpha[a_bad, None] * dx_old[a_bad]
+            rn_final[a_bad] = rn_old[a_bad]
+            active = act
+        return SolveResult(x=x, converged=conv, residual_norm=rn_final, iterations=iters)
+
+    def _p_matrix(self, p, n):
+        k = len(self.param_names)
+        if p is None:
+            return np.tile(np.asarray(self.p_default, float), (n, 1)).reshape(n, k)
+        p = np.asarray(p, float)
+        return np.tile(p, (n, 1)) if p.ndim == 1 else p
+
+    def _theta_matrix(self, theta, n):
+        if theta is None:
+            return np.zeros((n, len(THETA_NAMES)))
+        theta = np.asarray(theta, float)
+        if theta.ndim == 1:
+            theta = np.tile(theta, (n, 1))
+        return theta
+
+    def solve(self, w, theta=None, p=None, x0=None, tol=1e-10, max_iter=30, check=True):
+        """Solve the steady state at every row of ``w`` (N, 4): returns :class:`SolveResult`.
+
+        ``theta`` is (10,) or (N, 10); ``x0`` (N, 7) overrides the tabulated starting guess.
+        Points that fail from the table's guess are retried by continuation from the design
+        point before being flagged.
+        """
+        w = np.atleast_2d(np.asarray(w, float))
+        n = len(w)
+        th = self._theta_matrix(theta, n)
+        if check:
+            check_w(w)
+            check_theta(th)
+        x0 = self.initial_guess(w) if x0 is None else np.asarray(x0, float)
+        res = self._newton(w, th, x0, p, tol, max_iter)
+        bad = np.flatnonzero(~res.converged)
+        if bad.size and bad.size <= 200:
+            pm = self._p_matrix(p, n)
+            for i in bad:
+                r = self._continuation(w[i], np.array(X_DESIGN, float), th[i])
+                r2 = self._newton(w[i:i + 1], th[i:i + 1], r.x, pm[i:i + 1], tol, max_iter)
+                res.x[i], res.converged[i] = r2.x[0], r2.converged[0]
+                res.residual_norm[i], res.iterations[i] = r2.residual_norm[0], max_iter
+        return res
+
+    def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
+        """Solve a time series, warm-starting each block of ``chunk`` samples from the last
+        solution of the previous block (samples inside a block are solved together)."""
+        w = np.atleast_2d(np.asarray(w, float))
+        n = len(w)
+        th = self._theta_matrix(theta, n)
+        check_w(w)
+        check_theta(th)
+        pm = self._p_matrix(p, n)
+        out = SolveResult(np.zeros((n, N_UNKNOWNS)), np.zeros(n, bool), np.zeros(n),
+                          np.zeros(n, int))
+        x_prev = None
+        for s in range(0, n, chunk):
+            sl = slice(s, min(s + chunk, n))
+            guess = self.initial_guess(w[sl])
+            if x_prev is not None:
+                guess = np.tile(x_prev, (sl.stop - sl.start, 1))
+            r = self._newton(w[sl], th[sl], guess, pm[sl], tol, max_iter)
+            if not r.converged.all():
+                r2 = self.solve(w[sl], th[sl], pm[sl], tol=tol, max_iter=max_iter, check=False)
+                r = r2
+            out.x[sl], out.converged[sl] = r.x, r.converged
+            out.residual_norm[sl], out.iterations[sl] = r.residual_norm, r.iterations
+            x_prev = r.x[-1]
+        return out
+
+    # ------------------------------------------------------------------ outputs
+    def outputs_at(self, x, w, theta=None, p=None) -> np.ndarray:
+        """All outputs (N, len(OUTPUT_NAMES)) at given unknowns (no solve)."""
+        w = np.atleast_2d(np.asarray(w, float))
+        n = len(w)
+        th = self._theta_matrix(theta, n)
+        (y,) = self._call("outputs", np.asarray(x, float).T, w.T, th.T, self._p_matrix(p, n).T)
+        return y.T
+
+    def residuals_at(self, x, w, theta=None, p=None) -> np.ndarray:
+        w = np.atleast_2d(np.asarray(w, float))
+        n = len(w)
+        th = self._theta_matrix(theta, n)
+        (r,) = self._call("residual", np.asarray(x, float).T, w.T, th.T, self._p_matrix(p, n).T)
+        return r.T
+
+    def evaluate(self, data, theta=None, p=None, x0=None) -> pd.DataFrame:
+        """Evaluate ``F(w, theta)`` on a DataFrame (columns alt, Mach, TRA, T2 and optionally
+        the theta columns) or an (N, 4) array. Returns a DataFrame with every output channel
+        in N-CMAPSS units plus ``converged``, ``residual_norm`` and ``iterations``; outputs of
+        points that did not converge are NaN."""
+        w, th, index = self._unpack(data, theta)
+        res = self.solve(w, th, p, x0=x0)
+        y = self.outputs_at(res.x, w, th, p)
+        y[~res.converged] = np.nan
+        df = pd.DataFrame(y, columns=list(OUTPUT_NAMES), index=index)
+        df["converged"] = res.converged
+        df["residual_norm"] = res.residual_norm
+        df["iterations"] = res.iterations
+        return df
+
+    def _unpack(self, data, theta):
+        if isinstance(data, pd.DataFrame):
+            check_columns(data.columns, W_NAMES, "operating points")
+            index = data.index
+            w = data[list(W_NAMES)].to_numpy(float)
+            th_cols = [c for c in THETA_NAMES if c in data.columns]
+            if theta is None and th_cols:
+                th = np.zeros((len(data), len(THETA_NAMES)))
+                for c in th_cols:
+                    th[:, THETA_NAMES.index(c)] = data[c].to_numpy(float)
+                theta = th
+            check_w(w, np.asarray(index), "operating points")
+        else:
+            w = np.atleast_2d(np.asarray(data, float))
+            if w.shape[1] != len(W_NAMES):
+                raise InputError(f"operating points: expected {len(W_NAMES)} columns "
+                                 f"({', '.join(W_NAMES)}), got {w.shape[1]}")
+            index = pd.RangeIndex(len(w))
+        th = self._theta_matrix(theta, len(w))
+        if th.shape != (len(w), len(THETA_NAMES)):
+            raise InputError(f"theta: expected shape (N, {len(THETA_NAMES)}), got {th.shape}")
+        check_theta(th, np.asarray(index), "health parameters")
+        return w, th, index
+
+    def sensitivities(self, data, theta=None, p=None, x=None):
+        """Exact sensitivities at the steady state of each point.
+
+        Returns ``(dy_dtheta, dy_dw)`` as arrays (N, n_outputs, 10) and (N, n_outputs, 4), rows
+        in :data:`channels.OUTPUT_NAMES` order, derivatives per unit of theta (fraction) and of
+        w (ft, -, %, degR).
+        """
+        w, th, _ = self._unpack(data, theta)
+        if x is None:
+            res = self.solve(w, th, p)
+            if not res.converged.all():
+                i = int(np.flatnonzero(~res.converged)[0])
+                raise InputError(f"steady state did not converge at row {i}; no sensitivities")
+            x = res.x
+        dth, dw = self._call("sens", x.T, w.T, th.T, self._p_matrix(p, len(w)).T)
+        n_out = len(OUTPUT_NAMES)
+        dth = dth.T.reshape(len(w), len(THETA_NAMES), n_out).transpose(0, 2, 1)
+        dw = dw.T.reshape(len(w), len(W_NAMES), n_out).transpose(0, 2, 1)
+        return dth, dw
+
+    def point(self, alt, Mach, TRA, T2=None, dT_isa=0.0, theta=None) -> pd.Series:
+        """One operating point; ``T2`` [degR] defaults to ISA + ``dT_isa`` [K] at alt, Mach."""
+        if T2 is None:
+            T2 = float(atmosphere.t2_from_flight(alt, Mach, dT_isa)) * 1.8
+        th = np.zeros(len(THETA_NAMES))
+        for k, v in (theta or {}).items():
+            if k not in THETA_NAMES:
+                raise InputError(f"unknown health parameter {k!r}; one of {', '.join(THETA_NAMES)}")
+            th[THETA_NAMES.index(k)] = v
+        df = self.evaluate(np.array([[alt, Mach, TRA, T2]]), theta=th)
+        s = df.iloc[0]
+        s["T2"] = T2
+        return s
+
+    # ------------------------------------------------------------------ symbolic access
+    def residual_system(self) -> ResidualSystem:
+        return ResidualSystem(UNKNOWN_NAMES, OUTPUT_NAMES, self.param_names,
+                              np.array(X_DESIGN, float), self._symbolic["residual"],
+                              self._symbolic["outputs"], self.initial_guess)
+
+    def casadi_function(self) -> ca.Function:
+        """``F(w, theta, p) -> y``: the steady state as one CasADi Function (implicit solve by
+        a Newton rootfinder, exact derivatives), for use inside an optimisation. Starting
+        point of the rootfinder: the design unknowns."""
+        x, w, th, p = (self._sym[k] for k in ("x", "w", "theta", "p"))
+        g = ca.Function("g", [x, ca.vertcat(w, th, p)], [self._sym["res"]])
+        rf = ca.rootfinder("hyprog_steady", "newton", g, {"abstol": 1e-11, "max_iter": 50,
+                                                            "error_on_fail": False})
+        ww = ca.MX.sym("w", w.numel())
+        tt = ca.MX.sym("theta", th.numel())
+        pp = ca.MX.sym("p", p.numel())
+        xs = rf(ca.DM(X_DESIGN), ca.vertcat(ww, tt, pp))
+        y = self._symbolic["outputs"](xs, ww, tt, pp)
+        return ca.Function("hyprog_F", [ww, tt, pp], [y], ["w", "theta", "p"], ["y"])
