@@ -15,7 +15,7 @@ from pathlib import Path
 
 import casadi as ca
 
-CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-math-errno")
+CFLAGS = ("-fPIC", "-shared", "-fno-math-errno")
 
 
 def cache_dir() -> Path:
@@ -31,7 +31,8 @@ def compiler() -> str | None:
     return None
 
 
-def compile_functions(name: str, functions: list[ca.Function]) -> dict[str, ca.Function]:
+def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2"
+                      ) -> dict[str, ca.Function]:
     """Generate C for ``functions`` into one library and load each back as an external."""
     cc = compiler()
     if cc is None:
@@ -42,11 +43,11 @@ def compile_functions(name: str, functions: list[ca.Function]) -> dict[str, ca.F
             cg.add(f)
         src_path = Path(cg.generate(tmp + os.sep))
         src = src_path.read_bytes()
-        key = hashlib.sha256(src + " ".join((cc,) + CFLAGS).encode()).hexdigest()[:16]
+        key = hashlib.sha256(src + " ".join((cc, opt) + CFLAGS).encode()).hexdigest()[:16]
         lib = cache_dir() / f"{name}_{key}.so"
         if not lib.exists():
             tmp_lib = Path(tmp) / "out.so"
-            cmd = [cc, *CFLAGS, str(src_path), "-o", str(tmp_lib), "-lm"]
+            cmd = [cc, opt, *CFLAGS, str(src_path), "-o", str(tmp_lib), "-lm"]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
                 raise RuntimeError(f"compiling {name} failed: {proc.stderr[-2000:]}")

@@ -17,8 +17,9 @@ falls faster than speed on multistage high-pressure compressors because the fron
 toward stall at part speed (Walsh & Fletcher, ch. 5; Saravanamuttoo et al., *Gas Turbine
 Theory*, ch. 9) - hence ``k_flow`` > 1 growing with the number of stages. The surge line is the
 map line ``beta = beta_surge``. The efficiency fall-off is second order about the peak ridge
-and written as an exponential so it stays positive far from it; the stall margin is taken at constant corrected speed,
-``SM = 100 (PR_surge / PR - 1)`` [%] (SAE ARP1420 lists this among the accepted definitions).
+and written as an exponential so it stays positive far from it. The stall margin is taken at
+constant corrected speed, ``SM = 100 (PR_surge / PR - 1)`` [%] (one of the definitions that
+SAE ARP1420 accepts).
 
 Turbine (HPT, LPT) — flow capacity from Stodola's ellipse law (Cooke, ASME J. Eng. Gas
 Turbines Power 107, 1985), efficiency from a parabola in the blade-to-isentropic-velocity ratio

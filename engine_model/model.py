@@ -44,6 +44,7 @@ from .validation import InputError, check_columns, check_theta, check_w
 _STEP_LIMIT = np.array([1.0, 1.0, 1.0, 0.08, 0.15, 0.25, 0.25])
 _TABLE_PCT = np.linspace(60.0, 104.0, 23)
 _TABLE_MACH = np.linspace(0.0, 0.9, 10)
+_TABLE_T2 = (540.0, 470.0, 400.0)  # degR, descending
 
 
 @dataclass
@@ -114,23 +115,25 @@ class EngineModel:
         y = ca.vertcat(*[out[k] for k in OUTPUT_NAMES])
         self.stations_expr = st
         J = ca.jacobian(res, x)
-        dx = -ca.solve(J, res)
         f_res = ca.Function("hyprog_residual", [x, w, th, p], [res])
         f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y])
-        f_step = ca.Function("hyprog_newton_step", [x, w, th, p], [dx, res])
+        f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J])
         # exact sensitivities by the implicit function theorem
         Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w)))
         dy_dx = ca.jacobian(y, x)
         dth = ca.jacobian(y, th) - dy_dx @ Jinv_r[:, : th.numel()]
         dw = ca.jacobian(y, w) - dy_dx @ Jinv_r[:, th.numel():]
         f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], [dth, dw])
+        # dx*/dtheta, used only to tabulate starting guesses
+        self._f_dxdth = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, : th.numel()]])
         self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
-        self._symbolic = dict(residual=f_res, outputs=f_out, step=f_step, sens=f_sens)
+        self._symbolic = dict(residual=f_res, outputs=f_out, resjac=f_resjac, sens=f_sens)
         if self.compiled:
             name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
-            fs = compile_functions(name, [f_res, f_out, f_step, f_sens])
-            self._f = dict(residual=fs[f_res.name()], outputs=fs[f_out.name()],
-                           step=fs[f_step.name()], sens=fs[f_sens.name()])
+            hot = compile_functions(name + "_hot", [f_res, f_resjac], opt="-O2")
+            cold = compile_functions(name + "_cold", [f_out, f_sens], opt="-O1")
+            self._f = dict(residual=hot[f_res.name()], resjac=hot[f_resjac.name()],
+                           outputs=cold[f_out.name()], sens=cold[f_sens.name()])
         else:
             self._f = dict(self._symbolic)
 
@@ -145,51 +148,83 @@ class EngineModel:
                 self._maps[cache_key] = f.map(n, "serial")
         return self._maps[cache_key]
 
+    _CHUNK = 2048
+
     @staticmethod
     def _bucket(n):
         return max(8, 1 << int(np.ceil(np.log2(max(n, 1)))))
 
     def _call(self, key, *args):
-        """Evaluate function ``key`` column-wise on (k, N) arrays; pads N to a bucket size."""
+        """Evaluate function ``key`` column-wise on (k, N) arrays, in chunks of at most
+        ``_CHUNK`` columns (the last chunk padded to a power of two)."""
         n = args[0].shape[1]
-        nb = self._bucket(n)
-        padded = []
-        for a in args:
-            if a.shape[1] < nb:
-                a = np.concatenate([a, np.repeat(a[:, -1:], nb - a.shape[1], axis=1)], axis=1)
-            padded.append(a)
-        outs = self._mapped(key, nb)(*padded)
-        if not isinstance(outs, (list, tuple)):
-            outs = [outs]
-        return [np.asarray(o)[:, :n] for o in outs]
+        results = None
+        for s0 in range(0, n, self._CHUNK):
+            s1 = min(n, s0 + self._CHUNK)
+            m = s1 - s0
+            nb = self._CHUNK if m == self._CHUNK else self._bucket(m)
+            padded = []
+            for a in args:
+                a = a[:, s0:s1]
+                if m < nb:
+                    a = np.concatenate([a, np.repeat(a[:, -1:], nb - m, axis=1)], axis=1)
+                padded.append(a)
+            outs = self._mapped(key, nb)(*padded)
+            if not isinstance(outs, (list, tuple)):
+                outs = [outs]
+            outs = [np.asarray(o)[:, :m] if o.shape[1] == nb else
+                    np.asarray(o)[:, : o.shape[1] // nb * m] for o in outs]
+            if results is None:
+                results = [[o] for o in outs]
+            else:
+                for lst, o in zip(results, outs, strict=True):
+                    lst.append(o)
+        return [np.concatenate(lst, axis=1) for lst in results]
 
     def _build_table(self):
-        """Fill the starting-guess table by continuation over (PCNfR_dmd, Mach) at SLS ISA."""
+        """Fill the starting-guess table by continuation over (T2, PCNfR_dmd, Mach).
+
+        Sea-level pressure is used throughout: without Reynolds effects the corrected
+        operating point does not depend on pressure, and T2 enters through the gas
+        properties. Each node also stores dx*/dtheta for a first-order health correction.
+        """
         d = self.design
-        n_p, n_m = len(_TABLE_PCT), len(_TABLE_MACH)
-        table = np.zeros((n_p, n_m, N_UNKNOWNS))
+        n_t, n_p, n_m = len(_TABLE_T2), len(_TABLE_PCT), len(_TABLE_MACH)
+        table = np.zeros((n_t, n_p, n_m, N_UNKNOWNS))
         i_des = int(np.argmin(np.abs(_TABLE_PCT - 100.0)))
         order = list(range(i_des, n_p)) + list(range(i_des - 1, -1, -1))
         tra_of = self._tra_from_pct
-        x_prev_col = np.array(X_DESIGN, float)
-        for j, mach in enumerate(_TABLE_MACH):
-            T2 = float(atmosphere.t2_from_flight(0.0, mach)) * 1.8
-            x_start = x_prev_col.copy()
-            x_prev = x_start
-            for k, i in enumerate(order):
-                if i == i_des - 1:
-                    x_prev = table[i_des, j]
-                w = np.array([[0.0, mach, tra_of(_TABLE_PCT[i]), T2]])
-                r = self._newton(w, np.zeros((1, 10)), x_prev[None, :], max_iter=60)
-                if not r.converged[0]:
-                    r = self._continuation(w[0], x_prev, np.zeros(10))
-                table[i, j] = r.x[0]
-                x_prev = r.x[0]
-                if k == 0:
-                    x_prev_col = r.x[0]
-        T2s = np.array([float(atmosphere.t2_from_flight(0.0, m)) * 1.8 for m in _TABLE_MACH])
-        table[:, :, 4] *= d.T40_des * 1.8 / T2s[None, :]  # store T40/T2
+        x_node = np.array(X_DESIGN, float)
+        for it2, T2 in enumerate(_TABLE_T2):
+            r = self._continuation(np.array([0.0, 0.0, 100.0, T2]), x_node, np.zeros(10))
+            x_node = r.x[0]
+            x_prev_col = x_node
+            for j, mach in enumerate(_TABLE_MACH):
+                x_prev = x_prev_col
+                for k, i in enumerate(order):
+                    if i == i_des - 1:
+                        x_prev = table[it2, i_des, j]
+                    w = np.array([[0.0, mach, tra_of(_TABLE_PCT[i]), T2]])
+                    r = self._newton(w, np.zeros((1, 10)), x_prev[None, :], max_iter=60)
+                    if not r.converged[0]:
+                        r = self._continuation(w[0], x_prev, np.zeros(10))
+                    table[it2, i, j] = r.x[0]
+                    x_prev = r.x[0]
+                    if k == 0:
+                        x_prev_col = r.x[0]
+        ww = np.array([[0.0, mach, tra_of(pct), T2] for T2 in _TABLE_T2 for pct in _TABLE_PCT
+                       for mach in _TABLE_MACH])
+        xx = table.reshape(-1, N_UNKNOWNS)
+        zz = np.zeros((len(ww), len(THETA_NAMES)))
+        f = self._f_dxdth.map(len(ww), "serial")
+        dxdth = np.asarray(f(xx.T, ww.T, zz.T, self._p_matrix(None, len(ww)).T))
+        dxdth = dxdth.reshape(N_UNKNOWNS, len(ww), len(THETA_NAMES)).transpose(1, 0, 2)
+        dxdth = dxdth.reshape(n_t, n_p, n_m, N_UNKNOWNS, len(THETA_NAMES))
+        scale = d.T40_des * 1.8 / np.asarray(_TABLE_T2)[:, None, None]
+        dxdth[:, :, :, 4, :] *= scale[..., None]
+        table[:, :, :, 4] *= scale  # store T40/T2
         self._table = table
+        self._table_dth = dxdth
 
     def _tra_from_pct(self, pct):
         (t0, n0), (t1, n1) = self.design.spec.tra_schedule
@@ -204,26 +239,58 @@ class EngineModel:
             x = r.x[0]
         return r
 
-    def initial_guess(self, w: np.ndarray) -> np.ndarray:
-        """Starting unknowns (N, 7) for operating points ``w`` (N, 4), from the table."""
+    def initial_guess(self, w: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """Starting unknowns (N, 7) for operating points ``w`` (N, 4) and health ``theta``
+        (N, 10): trilinear interpolation in (T2, PCNfR_dmd, Mach) of the table, plus its
+        first-order theta correction (linear extrapolation in T2 outside the nodes)."""
+        w = np.atleast_2d(np.asarray(w, float))
         pct = self.design.nf_demand_pct(w[:, 2])
-        fp = np.clip((pct - _TABLE_PCT[0]) / (_TABLE_PCT[1] - _TABLE_PCT[0]), 0, len(_TABLE_PCT) - 1.000001)
-        fm = np.clip(w[:, 1] / (_TABLE_MACH[1] - _TABLE_MACH[0]), 0, len(_TABLE_MACH) - 1.000001)
-        i, j = fp.astype(int), fm.astype(int)
-        a, b = (fp - i)[:, None], (fm - j)[:, None]
-        t = self._table
-        x = ((1 - a) * (1 - b) * t[i, j] + a * (1 - b) * t[i + 1, j] + (1 - a) * b * t[i, j + 1]
-             + a * b * t[i + 1, j + 1])
+        t2n = np.asarray(_TABLE_T2)
+        coords = [
+            np.clip((w[:, 3] - t2n[0]) / (t2n[1] - t2n[0]), -1.0, len(t2n) - 1 + 1.0),
+            np.clip((pct - _TABLE_PCT[0]) / (_TABLE_PCT[1] - _TABLE_PCT[0]), 0,
+                    len(_TABLE_PCT) - 1),
+            np.clip(w[:, 1] / (_TABLE_MACH[1] - _TABLE_MACH[0]), 0, len(_TABLE_MACH) - 1),
+        ]
+        sizes = (len(t2n), len(_TABLE_PCT), len(_TABLE_MACH))
+        idx, frac = [], []
+        for c, nmax in zip(coords, sizes, strict=True):
+            i = np.clip(np.floor(c).astype(int), 0, nmax - 2)
+            idx.append(i)
+            frac.append(c - i)
+        x = np.zeros((len(w), N_UNKNOWNS))
+        th = None if theta is None else np.asarray(theta, float)
+        for corner in range(8):
+            bits = [(corner >> k) & 1 for k in range(3)]
+            wgt = np.ones(len(w))
+            ii = []
+            for b, i, f in zip(bits, idx, frac, strict=True):
+                wgt = wgt * (f if b else 1.0 - f)
+                ii.append(i + b)
+            x += wgt[:, None] * self._table[ii[0], ii[1], ii[2]]
+            if th is not None:
+                g = self._table_dth[ii[0], ii[1], ii[2]]
+                x += wgt[:, None] * np.einsum("nkt,nt->nk", g, th)
         x[:, 4] *= w[:, 3] / (self.design.T40_des * 1.8)
         return x
 
     # ------------------------------------------------------------------ solving
     def _newton(self, w, theta, x0, p=None, tol=1e-10, max_iter=30):
+        """Damped Newton-chord iteration over a batch, each point with its own step control.
+
+        A point gets a fresh exact Jacobian on its first iteration and whenever the residual
+        fell by less than a factor 4 over the last chord step; otherwise the previous
+        Jacobian is reused, so most iterations cost one residual evaluation. A step that
+        raised the residual is halved (backtracking along the previous direction).
+        """
         n = len(w)
         p = self._p_matrix(p, n)
         x = np.array(x0, float).copy()
+        k = x.shape[1]
         x_old = x.copy()
         dx_old = np.zeros_like(x)
+        J = np.zeros((n, k, k))
+        need_j = np.ones(n, bool)
         alpha = np.ones(n)
         rn_old = np.full(n, np.inf)
         rn_final = np.full(n, np.inf)
@@ -234,34 +301,48 @@ class EngineModel:
         for it in range(max_iter + 1):
             if active.size == 0:
                 break
-            dx, r = self._call("step", x[active].T, wT[:, active], thT[:, active], pT[:, active])
-            dx, r = dx.T, r.T
+            r = np.empty((active.size, k))
+            nj = need_j[active]
+            ij, ir = active[nj], active[~nj]
+            if ij.size:
+                rj, Jj = self._call("resjac", x[ij].T, wT[:, ij], thT[:, ij], pT[:, ij])
+                r[nj] = rj.T
+                J[ij] = Jj.reshape(k, ij.size, k).transpose(1, 0, 2)
+            if ir.size:
+                (rr,) = self._call("residual", x[ir].T, wT[:, ir], thT[:, ir], pT[:, ir])
+                r[~nj] = rr.T
             rn = np.abs(r).max(axis=1)
             rn[~np.isfinite(rn)] = np.inf
             done = rn < tol
-            idx_done = active[done]
-            conv[idx_done] = True
-            rn_final[idx_done] = rn[done]
-            iters[idx_done] = it
+            conv[active[done]] = True
+            rn_final[active[done]] = rn[done]
+            iters[active[done]] = it
             if it == max_iter:
                 rn_final[active[~done]] = rn[~done]
                 iters[active[~done]] = it
                 break
             keep = ~done
-            act, rn, dx = active[keep], rn[keep], dx[keep]
-            worse = (rn >= rn_old[act]) | ~np.all(np.isfinite(dx), axis=1)
+            act, rn, r, fresh = active[keep], rn[keep], r[keep], nj[keep]
+            worse = rn >= rn_old[act]
             ok = ~worse
             a_ok = act[ok]
-            lim = np.min(_STEP_LIMIT / np.maximum(np.abs(dx[ok]), 1e-300), axis=1)
+            with np.errstate(all="ignore"):
+                dx = -np.linalg.solve(J[a_ok], r[ok][:, :, None])[:, :, 0]
+            finite = np.all(np.isfinite(dx), axis=1)
+            dx[~finite] = 0.0
+            lim = np.min(_STEP_LIMIT / np.maximum(np.abs(dx), 1e-300), axis=1)
             step_a = np.minimum(1.0, lim)
+            slow = (~fresh[ok]) & (rn[ok] > 0.25 * rn_old[a_ok])
+            need_j[a_ok] = slow | ~finite
             x_old[a_ok] = x[a_ok]
-            dx_old[a_ok] = dx[ok]
+            dx_old[a_ok] = dx
             alpha[a_ok] = step_a
             rn_old[a_ok] = rn[ok]
-            x[a_ok] = x[a_ok] + step_a[:, None] * dx[ok]
+            x[a_ok] = x[a_ok] + step_a[:, None] * dx
             a_bad = act[worse]
             alpha[a_bad] *= 0.5
             x[a_bad] = x_old[a_bad] + alpha[a_bad, None] * dx_old[a_bad]
+            need_j[a_bad] = True
             rn_final[a_bad] = rn_old[a_bad]
             active = act
         return SolveResult(x=x, converged=conv, residual_norm=rn_final, iterations=iters)
@@ -294,7 +375,7 @@ class EngineModel:
         if check:
             check_w(w)
             check_theta(th)
-        x0 = self.initial_guess(w) if x0 is None else np.asarray(x0, float)
+        x0 = self.initial_guess(w, th) if x0 is None else np.asarray(x0, float)
         res = self._newton(w, th, x0, p, tol, max_iter)
         bad = np.flatnonzero(~res.converged)
         if bad.size and bad.size <= 200:
@@ -320,7 +401,7 @@ class EngineModel:
         x_prev = None
         for s in range(0, n, chunk):
             sl = slice(s, min(s + chunk, n))
-            guess = self.initial_guess(w[sl])
+            guess = self.initial_guess(w[sl], th[sl])
             if x_prev is not None:
                 guess = np.tile(x_prev, (sl.stop - sl.start, 1))
             r = self._newton(w[sl], th[sl], guess, pm[sl], tol, max_iter)

@@ -1,0 +1,23 @@
+"""Random operating points of the civil flight envelope (shared by benchmarks and CLI).
+
+alt 0-42,000 ft; Mach from 0 up to min(0.85, the Mach of 350 kt calibrated airspeed at that
+altitude); TRA 20-100 %; ISA day offset +-15 K; theta uniform in [-0.05, 0].
+"""
+
+import numpy as np
+
+from engine_model import atmosphere
+
+
+def random_envelope(n, seed=0, theta_range=(-0.05, 0.0)):
+    rng = np.random.default_rng(seed)
+    alt = rng.uniform(0.0, 42000.0, n)
+    m_cas = np.array([float(atmosphere.mach_from_cas(350 * 0.514444, a)) for a in alt])
+    mach = rng.uniform(0.0, 1.0, n) * np.minimum(0.85, m_cas)
+    tra = rng.uniform(20.0, 100.0, n)
+    dT = rng.uniform(-15.0, 15.0, n)
+    T2 = np.array([float(atmosphere.t2_from_flight(a, m, d))
+                   for a, m, d in zip(alt, mach, dT, strict=True)])
+    w = np.column_stack([alt, mach, tra, T2 * 1.8])
+    theta = rng.uniform(theta_range[0], theta_range[1], (n, 10))
+    return w, theta
