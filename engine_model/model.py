@@ -388,8 +388,13 @@ class EngineModel:
         return res
 
     def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
-        """Solve a time series, warm-starting each block of ``chunk`` samples from the last
-        solution of the previous block (samples inside a block are solved together)."""
+        """Solve a time series with warm starts.
+
+        Samples are solved in blocks of ``chunk``; each block starts from the tabulated guess
+        corrected by the offset between the previous block's last solution and its own
+        tabulated guess, so what the table misses (mostly the nonlinear effect of theta,
+        which changes slowly along a series) is carried forward.
+        """
         w = np.atleast_2d(np.asarray(w, float))
         n = len(w)
         th = self._theta_matrix(theta, n)
@@ -398,19 +403,18 @@ class EngineModel:
         pm = self._p_matrix(p, n)
         out = SolveResult(np.zeros((n, N_UNKNOWNS)), np.zeros(n, bool), np.zeros(n),
                           np.zeros(n, int))
-        x_prev = None
+        offset = np.zeros(N_UNKNOWNS)
         for s in range(0, n, chunk):
             sl = slice(s, min(s + chunk, n))
-            guess = self.initial_guess(w[sl], th[sl])
-            if x_prev is not None:
-                guess = np.tile(x_prev, (sl.stop - sl.start, 1))
+            guess = self.initial_guess(w[sl], th[sl]) + offset
             r = self._newton(w[sl], th[sl], guess, pm[sl], tol, max_iter)
             if not r.converged.all():
-                r2 = self.solve(w[sl], th[sl], pm[sl], tol=tol, max_iter=max_iter, check=False)
-                r = r2
+                r = self.solve(w[sl], th[sl], pm[sl], tol=tol, max_iter=max_iter, check=False)
             out.x[sl], out.converged[sl] = r.x, r.converged
             out.residual_norm[sl], out.iterations[sl] = r.residual_norm, r.iterations
-            x_prev = r.x[-1]
+            last = sl.stop - 1
+            if r.converged[-1]:
+                offset = r.x[-1] - self.initial_guess(w[last:last + 1], th[last:last + 1])[0]
         return out
 
     # ------------------------------------------------------------------ outputs
