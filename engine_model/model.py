@@ -101,7 +101,7 @@ class EngineModel:
         self.p_default = self.effects.defaults
         self._build()
         self._maps: dict = {}
-        self._build_table()
+        self._load_or_build_table()
 
     # ------------------------------------------------------------------ construction
     def _build(self):
@@ -180,6 +180,27 @@ class EngineModel:
                 for lst, o in zip(results, outs, strict=True):
                     lst.append(o)
         return [np.concatenate(lst, axis=1) for lst in results]
+
+    def _load_or_build_table(self):
+        """The starting-guess table, cached on disk next to the compiled code, keyed by a
+        hash of the residual system (a changed model rebuilds it)."""
+        import hashlib
+
+        from .codegen import cache_dir
+
+        key = hashlib.sha256(self._symbolic["residual"].serialize().encode()).hexdigest()[:16]
+        path = cache_dir() / f"table_{key}.npz"
+        if path.exists():
+            try:
+                z = np.load(path)
+                self._table, self._table_dth = z["table"], z["dth"]
+                return
+            except (OSError, KeyError, ValueError):
+                pass
+        self._build_table()
+        staged = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(staged, table=self._table, dth=self._table_dth)
+        os.replace(staged, path)
 
     def _build_table(self):
         """Fill the starting-guess table by continuation over (T2, PCNfR_dmd, Mach).
