@@ -398,6 +398,7 @@ class EngineModel:
             check_theta(th)
         x0 = self.initial_guess(w, th) if x0 is None else np.asarray(x0, float)
         res = self._newton(w, th, x0, p, tol, max_iter)
+        self._reject_off_map(res)
         bad = np.flatnonzero(~res.converged)
         if bad.size and bad.size <= 200:
             pm = self._p_matrix(p, n)
@@ -406,7 +407,24 @@ class EngineModel:
                 r2 = self._newton(w[i:i + 1], th[i:i + 1], r.x, pm[i:i + 1], tol, max_iter)
                 res.x[i], res.converged[i] = r2.x[0], r2.converged[0]
                 res.residual_norm[i], res.iterations[i] = r2.residual_norm[0], max_iter
+            self._reject_off_map(res)
         return res
+
+    def valid_on_maps(self, x: np.ndarray) -> np.ndarray:
+        """True where every compressor operates where its map means something: the head and
+        flow factors along the speed line, ``1 + s_head beta`` and ``1 - s_flow beta``, stay
+        above 0.1. A root of the residual system outside that region is non-physical (e.g.
+        a compressor with a negative head) and is not reported as converged."""
+        d = self.design
+        ok = np.ones(len(x), bool)
+        for j, cmap in enumerate((d.fan, d.lpc, d.hpc)):
+            b = x[:, j]
+            ok &= (1.0 + cmap.s_head * b > 0.1) & (1.0 - cmap.s_flow * b > 0.1)
+        return ok
+
+    def _reject_off_map(self, res: SolveResult):
+        off = res.converged & ~self.valid_on_maps(res.x)
+        res.converged[off] = False
 
     def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
         """Solve a time series with warm starts.
@@ -429,6 +447,7 @@ class EngineModel:
             sl = slice(s, min(s + chunk, n))
             guess = self.initial_guess(w[sl], th[sl]) + offset
             r = self._newton(w[sl], th[sl], guess, pm[sl], tol, max_iter)
+            self._reject_off_map(r)
             if not r.converged.all():
                 r = self.solve(w[sl], th[sl], pm[sl], tol=tol, max_iter=max_iter, check=False)
             out.x[sl], out.converged[sl] = r.x, r.converged

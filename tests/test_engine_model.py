@@ -426,12 +426,8 @@ def test_civil_envelope_states_are_physical(model, envelope_run):
     assert (ev.Fn > 0).all() and (ev.Wf > 0).all()
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "engine_model bug: a non-physical root is reported as converged. At w = [-1500 ft, "
-    "Mach 0.9, TRA 15, T2 620 degR] (inside ENVELOPE) with every theta = -0.10, solve() "
-    "returns converged=True (residual 2.6e-11) at beta_LPC = -10 where the LPC head "
-    "1 + s_head*beta < 0: pr_lpc = 0.98, eta_lpc = 0.005, T24 about 24 K, Nc = 1660 rpm, "
-    "SmHPC = -54 %."))
+# regression: a root off the end of the LPC map (negative head) was once reported as converged
+# at w = [-1500 ft, Mach 0.9, TRA 15, T2 620 degR] with every theta = -0.10
 def test_no_unphysical_root_reported_as_converged(model):
     w = np.array([[-1500.0, 0.9, 15.0, 620.0]])
     th = np.full((1, N_TH), -0.10)
