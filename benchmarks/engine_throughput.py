@@ -2,21 +2,18 @@
 
 Run by hand: ``python benchmarks/engine_throughput.py [--n 100000]``. Prints a table; the
 README quotes it with the machine it ran on. Points: random civil envelope
-(benchmarks/envelope_points.py), theta uniform in [-0.05, 0].
+(engine_model.sampling), theta uniform in [-0.05, 0].
 """
 
 import argparse
 import os
 import platform
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-from envelope_points import random_envelope  # noqa: E402
-
 from engine_model import EngineModel  # noqa: E402
+from engine_model.sampling import random_envelope  # noqa: E402
 
 
 def _time(fn, repeat=1):

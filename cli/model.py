@@ -279,22 +279,15 @@ def random_envelope(n: int, seed: int = 0):
 
     alt uniform 0-42,000 ft; Mach uniform from 0 to min(0.85, the Mach of 350 kt calibrated
     airspeed at that altitude); TRA 20-100 %; ISA day offset +-15 K; theta uniform in
-    [-0.05, 0]. Same draws, in the same order, as ``benchmarks/envelope_points.py``.
+    [-0.05, 0]. The draws of :func:`engine_model.sampling.random_envelope`.
     """
-    import numpy as np
     import pandas as pd
 
-    from engine_model import THETA_NAMES, atmosphere
+    from engine_model import THETA_NAMES
+    from engine_model.sampling import random_envelope as sample
 
-    rng = np.random.default_rng(seed)
-    alt = rng.uniform(0.0, 42000.0, n)
-    m_cas = np.array([float(atmosphere.mach_from_cas(350 * KT_TO_MS, a)) for a in alt])
-    mach = rng.uniform(0.0, 1.0, n) * np.minimum(0.85, m_cas)
-    tra = rng.uniform(20.0, 100.0, n)
-    dT = rng.uniform(-15.0, 15.0, n)
-    T2 = np.array([float(atmosphere.t2_from_flight(a, m, d)) * 1.8
-                   for a, m, d in zip(alt, mach, dT, strict=True)])
-    theta = rng.uniform(-0.05, 0.0, (n, len(THETA_NAMES)))
+    w, theta, dT = sample(n, seed, return_day_offset=True)
+    alt, mach, tra, T2 = w.T
     df = pd.DataFrame({"alt": alt, "Mach": mach, "TRA": tra, "T2": T2})
     df[list(THETA_NAMES)] = theta
     df["dT_isa"] = dT

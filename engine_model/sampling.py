@@ -1,4 +1,4 @@
-"""Random operating points of the civil flight envelope (shared by benchmarks and CLI).
+"""Random operating points of the civil flight envelope (used by the CLI, benchmarks, tests).
 
 alt 0-42,000 ft; Mach from 0 up to min(0.85, the Mach of 350 kt calibrated airspeed at that
 altitude); TRA 20-100 %; ISA day offset +-15 K; theta uniform in [-0.05, 0].
@@ -6,10 +6,11 @@ altitude); TRA 20-100 %; ISA day offset +-15 K; theta uniform in [-0.05, 0].
 
 import numpy as np
 
-from engine_model import atmosphere
+from . import atmosphere
 
 
-def random_envelope(n, seed=0, theta_range=(-0.05, 0.0)):
+def random_envelope(n, seed=0, theta_range=(-0.05, 0.0), return_day_offset=False):
+    """``(w (n, 4), theta (n, 10))``, plus the ISA day offsets [K] if asked for."""
     rng = np.random.default_rng(seed)
     alt = rng.uniform(0.0, 42000.0, n)
     m_cas = np.array([float(atmosphere.mach_from_cas(350 * 0.514444, a)) for a in alt])
@@ -20,4 +21,4 @@ def random_envelope(n, seed=0, theta_range=(-0.05, 0.0)):
                    for a, m, d in zip(alt, mach, dT, strict=True)])
     w = np.column_stack([alt, mach, tra, T2 * 1.8])
     theta = rng.uniform(theta_range[0], theta_range[1], (n, 10))
-    return w, theta
+    return (w, theta, dT) if return_day_offset else (w, theta)
