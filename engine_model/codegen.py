@@ -31,9 +31,22 @@ def compiler() -> str | None:
     return None
 
 
-def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2"
-                      ) -> dict[str, ca.Function]:
-    """Generate C for ``functions`` into one library and load each back as an external."""
+def _build(cc: str, opt: str, sources: list[str], flags: tuple, out: Path) -> str | None:
+    cmd = [cc, opt, *CFLAGS, *flags, *sources, "-o", str(out), "-lm"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    return None if proc.returncode == 0 else proc.stderr[-2000:]
+
+
+def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2",
+                      extra_sources: tuple = (), extra_flags: tuple = (),
+                      optional_flags: tuple = ()) -> dict[str, ca.Function]:
+    """Generate C for ``functions`` into one library and load each back as an external.
+
+    ``extra_sources`` (paths of hand-written C files, e.g. the batched Newton driver) are
+    compiled into the same library with ``extra_flags``; ``optional_flags`` (e.g.
+    ``-fopenmp``) are dropped if the compiler rejects them. The library path is returned
+    under the key ``"__library__"`` for callers that load it with ctypes as well.
+    """
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set CC); use compiled=False")
@@ -42,16 +55,22 @@ def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2"
         for f in functions:
             cg.add(f)
         src_path = Path(cg.generate(tmp + os.sep))
-        src = src_path.read_bytes()
-        key = hashlib.sha256(src + " ".join((cc, opt) + CFLAGS).encode()).hexdigest()[:16]
+        src = src_path.read_bytes() + b"".join(Path(p).read_bytes() for p in extra_sources)
+        flags = tuple(extra_flags) + tuple(optional_flags)
+        key = hashlib.sha256(src + " ".join((cc, opt) + CFLAGS + flags).encode()
+                             ).hexdigest()[:16]
         lib = cache_dir() / f"{name}_{key}.so"
         if not lib.exists():
             tmp_lib = Path(tmp) / "out.so"
-            cmd = [cc, opt, *CFLAGS, str(src_path), "-o", str(tmp_lib), "-lm"]
-            proc = subprocess.run(cmd, capture_output=True, text=True)
-            if proc.returncode != 0:
-                raise RuntimeError(f"compiling {name} failed: {proc.stderr[-2000:]}")
+            sources = [str(src_path), *map(str, extra_sources)]
+            err = _build(cc, opt, sources, flags, tmp_lib)
+            if err is not None and optional_flags:
+                err = _build(cc, opt, sources, tuple(extra_flags), tmp_lib)
+            if err is not None:
+                raise RuntimeError(f"compiling {name} failed: {err}")
             staged = lib.with_suffix(f".{os.getpid()}.tmp")
             shutil.copyfile(tmp_lib, staged)
             os.replace(staged, lib)
-    return {f.name(): ca.external(f.name(), str(lib)) for f in functions}
+    out = {f.name(): ca.external(f.name(), str(lib)) for f in functions}
+    out["__library__"] = str(lib)
+    return out

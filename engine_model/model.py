@@ -25,8 +25,10 @@ implicit function theorem on the residual system:
 
 from __future__ import annotations
 
+import ctypes
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -45,6 +47,19 @@ _STEP_LIMIT = np.array([1.0, 1.0, 1.0, 0.08, 0.15, 0.25, 0.25])
 _TABLE_PCT = np.linspace(60.0, 104.0, 23)
 _TABLE_MACH = np.linspace(0.0, 0.9, 10)
 _TABLE_T2 = (540.0, 470.0, 400.0)  # degR, descending
+
+
+def _load_newton_driver(library: str):
+    """``hyprog_newton_batch`` of the compiled library, typed for numpy arrays."""
+    lib = ctypes.CDLL(library)
+    f = lib.hyprog_newton_batch
+    dbl = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
+    i32 = np.ctypeslib.ndpointer(np.int32, flags="C_CONTIGUOUS")
+    c_int = ctypes.c_int
+    f.argtypes = [c_int, c_int, c_int, c_int, c_int, dbl, dbl, dbl, dbl, dbl, i32, i32,
+                  ctypes.c_double, c_int, dbl, c_int]
+    f.restype = c_int
+    return f
 
 
 @dataclass
@@ -114,7 +129,7 @@ class EngineModel:
         out = imperial_outputs(st, hook)
         y = ca.vertcat(*[out[k] for k in OUTPUT_NAMES])
         self.stations_expr = st
-        J = ca.jacobian(res, x)
+        J = ca.densify(ca.jacobian(res, x))
         f_res = ca.Function("hyprog_residual", [x, w, th, p], [res])
         f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y])
         f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J])
@@ -130,12 +145,18 @@ class EngineModel:
         self._symbolic = dict(residual=f_res, outputs=f_out, resjac=f_resjac, sens=f_sens)
         if self.compiled:
             name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
-            hot = compile_functions(name + "_hot", [f_res, f_resjac], opt="-O2")
+            hot = compile_functions(
+                name + "_hot", [f_res, f_resjac], opt="-O2",
+                extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
+                extra_flags=(f"-DRES_FN={f_res.name()}", f"-DRESJAC_FN={f_resjac.name()}"),
+                optional_flags=("-fopenmp",))
+            self._newton_c = _load_newton_driver(hot["__library__"])
             cold = compile_functions(name + "_cold", [f_out, f_sens], opt="-O1")
             self._f = dict(residual=hot[f_res.name()], resjac=hot[f_resjac.name()],
                            outputs=cold[f_out.name()], sens=cold[f_sens.name()])
         else:
             self._f = dict(self._symbolic)
+            self._newton_c = None
 
     def _mapped(self, key, n):
         """A thread-mapped version of function ``key`` for batches padded to size ``n``."""
@@ -188,6 +209,13 @@ class EngineModel:
 
         from .codegen import cache_dir
 
+        if self.effects.effects:
+            # Effects at their default parameters change the steady state little, and the
+            # table is only a starting guess: share the base model's table (built or loaded
+            # once) instead of tabulating every combination of effects.
+            base = EngineModel(self.design, compiled=self.compiled, n_threads=self.n_threads)
+            self._table, self._table_dth = base._table, base._table_dth
+            return
         key = hashlib.sha256(self._symbolic["residual"].serialize().encode()).hexdigest()[:16]
         path = cache_dir() / f"table_{key}.npz"
         if path.exists():
@@ -252,12 +280,17 @@ class EngineModel:
         return t0 + (pct - n0) * (t1 - t0) / (n1 - n0)
 
     def _continuation(self, w_target, x_start, theta, steps=20):
+        """Walk from sea-level static (theta = 0) to ``w_target``, ``theta`` in ``steps``
+        Newton solves; the result's ``iterations`` is the total over all steps."""
         w0 = np.array([0.0, 0.0, 100.0, 518.67])
         x = x_start
+        total = 0
         for lam in np.linspace(0, 1, steps + 1)[1:]:
             r = self._newton((w0 + lam * (w_target - w0))[None, :], theta[None, :] * lam,
                              x[None, :], max_iter=60)
             x = r.x[0]
+            total += int(r.iterations[0])
+        r.iterations[0] = total
         return r
 
     def initial_guess(self, w: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
@@ -297,6 +330,30 @@ class EngineModel:
 
     # ------------------------------------------------------------------ solving
     def _newton(self, w, theta, x0, p=None, tol=1e-10, max_iter=30):
+        """Solve a batch by damped Newton-chord: in compiled C across threads when the model
+        is compiled (``newton_batch.c``), else in numpy (:meth:`_newton_python`); both run the
+        same iteration."""
+        if self._newton_c is None:
+            return self._newton_python(w, theta, x0, p, tol, max_iter)
+        n = len(w)
+        W = np.ascontiguousarray(w, float)
+        TH = np.ascontiguousarray(theta, float)
+        P = np.ascontiguousarray(self._p_matrix(p, n), float)
+        if P.shape[1] == 0:
+            P = np.zeros((n, 1))
+        X = np.array(x0, float, order="C", copy=True)
+        rn = np.empty(n)
+        it = np.empty(n, np.int32)
+        conv = np.empty(n, np.int32)
+        threads = self.n_threads if n >= 64 else 1
+        rc = self._newton_c(n, X.shape[1], W.shape[1], TH.shape[1], P.shape[1], W, TH, P, X,
+                            rn, it, conv, float(tol), int(max_iter), _STEP_LIMIT, threads)
+        if rc != 0:
+            raise RuntimeError(f"batched Newton driver failed (code {rc})")
+        return SolveResult(x=X, converged=conv.astype(bool), residual_norm=rn,
+                           iterations=it.astype(int))
+
+    def _newton_python(self, w, theta, x0, p=None, tol=1e-10, max_iter=30):
         """Damped Newton-chord iteration over a batch, each point with its own step control.
 
         A point gets a fresh exact Jacobian on its first iteration and whenever the residual
@@ -406,7 +463,9 @@ class EngineModel:
                 r = self._continuation(w[i], np.array(X_DESIGN, float), th[i])
                 r2 = self._newton(w[i:i + 1], th[i:i + 1], r.x, pm[i:i + 1], tol, max_iter)
                 res.x[i], res.converged[i] = r2.x[0], r2.converged[0]
-                res.residual_norm[i], res.iterations[i] = r2.residual_norm[0], max_iter
+                # iterations actually spent: the failed attempt, the continuation, the polish
+                res.residual_norm[i] = r2.residual_norm[0]
+                res.iterations[i] += r.iterations[0] + r2.iterations[0]
             self._reject_off_map(res)
         return res
 

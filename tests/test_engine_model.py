@@ -639,3 +639,31 @@ def test_effect_shifts_only_its_channel(model):
                                rtol=1e-12, atol=0.0)
     # the residual system (hence the steady state) does not see a sensor offset
     np.testing.assert_array_equal(m.solve(w, th, p=[offset]).x, m.solve(w, th).x)
+
+
+def test_c_newton_driver_runs_the_numpy_iteration(model):
+    """The batched Newton in C (newton_batch.c, threads) and the numpy reference
+    implementation take the same steps: same iteration counts, same roots."""
+    from engine_model.sampling import random_envelope
+
+    w, th = random_envelope(400, seed=11)
+    x0 = model.initial_guess(w, th)
+    a = model._newton(w, th, x0)
+    b = model._newton_python(w, th, x0)
+    assert a.converged.all() and b.converged.all()
+    np.testing.assert_array_equal(a.iterations, b.iterations)
+    np.testing.assert_allclose(a.x, b.x, rtol=0.0, atol=1e-9)
+    assert (a.residual_norm < 1e-10).all()
+    # a point that cannot converge in the allowed iterations is reported, not hidden
+    c = model._newton(w[:3], th[:3], x0[:3] + 0.5, max_iter=1)
+    assert not c.converged.any() and (c.iterations == 1).all()
+    assert np.all(c.residual_norm > 1e-10)
+
+
+def test_rescued_point_reports_the_iterations_it_used(model):
+    """A point solved only by continuation reports the iterations actually spent
+    (failed attempt + continuation + polish), not a placeholder."""
+    w = w_rows([(35000.0, 0.8, 100.0)])
+    res = model.solve(w, x0=np.array([[3.0, 3.0, 3.0, 0.6, 0.5, 0.5, 0.5]]), max_iter=4)
+    assert res.converged[0]
+    assert res.iterations[0] > 4 + 20
