@@ -486,12 +486,14 @@ class EngineModel:
         res.converged[off] = False
 
     def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
-        """Solve a time series with warm starts.
+        """Solve a time series with warm starts, vectorised over the whole series.
 
-        Samples are solved in blocks of ``chunk``; each block starts from the tabulated guess
-        corrected by the offset between the previous block's last solution and its own
-        tabulated guess, so what the table misses (mostly the nonlinear effect of theta,
-        which changes slowly along a series) is carried forward.
+        Every ``chunk``-th sample is an anchor, solved from the tabulated guess. Every other
+        sample starts from its own tabulated guess corrected by the offset between the
+        preceding anchor's solution and that anchor's tabulated guess: what the table misses
+        (mostly the nonlinear effect of theta and of the effects' parameters, which change
+        slowly along a series) is carried forward. Samples that still fail are retried from
+        the previous converged sample, then by :meth:`solve`'s continuation.
         """
         w = np.atleast_2d(np.asarray(w, float))
         n = len(w)
@@ -499,21 +501,41 @@ class EngineModel:
         check_w(w)
         check_theta(th)
         pm = self._p_matrix(p, n)
-        out = SolveResult(np.zeros((n, N_UNKNOWNS)), np.zeros(n, bool), np.zeros(n),
-                          np.zeros(n, int))
-        offset = np.zeros(N_UNKNOWNS)
-        for s in range(0, n, chunk):
-            sl = slice(s, min(s + chunk, n))
-            guess = self.initial_guess(w[sl], th[sl]) + offset
-            r = self._newton(w[sl], th[sl], guess, pm[sl], tol, max_iter)
-            self._reject_off_map(r)
-            if not r.converged.all():
-                r = self.solve(w[sl], th[sl], pm[sl], tol=tol, max_iter=max_iter, check=False)
-            out.x[sl], out.converged[sl] = r.x, r.converged
-            out.residual_norm[sl], out.iterations[sl] = r.residual_norm, r.iterations
-            last = sl.stop - 1
-            if r.converged[-1]:
-                offset = r.x[-1] - self.initial_guess(w[last:last + 1], th[last:last + 1])[0]
+        chunk = max(1, int(chunk))
+        guess = self.initial_guess(w, th)
+        anchors = np.arange(0, n, chunk)
+        ra = self._newton(w[anchors], th[anchors], guess[anchors], pm[anchors], tol, max_iter)
+        self._reject_off_map(ra)
+        offset = np.where(ra.converged[:, None], ra.x - guess[anchors], 0.0)
+        # anchors that failed pass on the offset of the last one that converged
+        ok_idx = np.maximum.accumulate(np.where(ra.converged, np.arange(len(anchors)), -1))
+        offset = np.where((ok_idx >= 0)[:, None], offset[np.maximum(ok_idx, 0)], 0.0)
+        x0 = guess + np.repeat(offset, chunk, axis=0)[:n]
+        x0[anchors] = ra.x
+        out = self._newton(w, th, x0, pm, tol, max_iter)
+        self._reject_off_map(out)
+        out.iterations[anchors] += np.where(ra.converged, ra.iterations, 0)
+        bad = np.flatnonzero(~out.converged)
+        if bad.size:
+            good = np.flatnonzero(out.converged)
+            prev = np.searchsorted(good, bad) - 1
+            has = prev >= 0
+            if has.any():
+                src = good[prev[has]]
+                b = bad[has]
+                x1 = guess[b] + (out.x[src] - guess[src])
+                r = self._newton(w[b], th[b], x1, pm[b], tol, max_iter)
+                self._reject_off_map(r)
+                out.x[b], out.converged[b] = r.x, r.converged
+                out.residual_norm[b] = r.residual_norm
+                out.iterations[b] += r.iterations
+            bad = np.flatnonzero(~out.converged)
+            if bad.size:
+                r = self.solve(w[bad], th[bad], pm[bad], tol=tol, max_iter=max_iter,
+                               check=False)
+                out.x[bad], out.converged[bad] = r.x, r.converged
+                out.residual_norm[bad] = r.residual_norm
+                out.iterations[bad] += r.iterations
         return out
 
     # ------------------------------------------------------------------ outputs

@@ -588,6 +588,9 @@ def test_solve_series_warm_start_matches_solve(model):
         if chunk == 1:
             # warm-started from the previous sample: a few Newton iterations each
             assert ser.iterations[1:].max() <= 6
+        if chunk == 7:
+            # the carried offset saves iterations over the table's guess alone
+            assert ser.iterations.mean() < ref.iterations.mean()
 
 
 # ------------------------------------------------------------------ thrust and TSFC
