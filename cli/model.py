@@ -14,16 +14,15 @@ Heavy modules (CasADi, the engine model, pandas) are imported inside the functio
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
+
+from cli.common import CliError, console, echo_json, fail, plain, user_errors
 
 app = typer.Typer(
     help="The physics-based engine model F(w, theta) -> (x_s, x_v).",
@@ -49,17 +48,7 @@ MAX_FAILURE_ROWS = 20
 _MODEL = None
 
 
-class CliError(Exception):
-    """A mistake in the user's input, reported as one line (no traceback)."""
-
-
 # ----------------------------------------------------------------------------- helpers
-def _console(stderr: bool = False):
-    from rich.console import Console
-
-    return Console(stderr=stderr, highlight=False)
-
-
 def get_model():
     """The process-wide :class:`engine_model.EngineModel` (built, compiled and cached once)."""
     global _MODEL
@@ -67,7 +56,7 @@ def get_model():
         from engine_model import EngineModel
 
         if sys.stderr.isatty():
-            with _console(stderr=True).status(
+            with console(stderr=True).status(
                     "building the engine model (the first run compiles C, later ones load it)"):
                 _MODEL = EngineModel(compiled=True)
         else:
@@ -75,56 +64,9 @@ def get_model():
     return _MODEL
 
 
-def _fail(message: str, code: int = 1):
-    typer.echo("error: " + " ".join(str(message).split()), err=True)
-    raise typer.Exit(code)
-
-
-@contextmanager
-def user_errors(source: object = None) -> Iterator[None]:
-    """Turn the errors a user can act on into one line on stderr and exit code 1."""
-    import pandas as pd
-
-    from engine_model import InputError
-
-    where = f"{source}: " if source is not None else ""
-    try:
-        yield
-    except (CliError, InputError) as e:
-        _fail(f"{where}{e}")
-    except FileNotFoundError as e:
-        _fail(f"{e.filename or source}: no such file")
-    except IsADirectoryError as e:
-        _fail(f"{e.filename or source}: is a directory, expected a CSV file")
-    except OSError as e:
-        _fail(f"{e.filename or source}: {e.strerror or e}")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        _fail(f"{where}cannot read as CSV: {e}")
-
-
-def _plain(v):
-    """A JSON-ready Python scalar: NaN and infinities become null."""
-    if hasattr(v, "item"):
-        v = v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
-
-
-def _echo_json(obj):
-    def walk(o):
-        if isinstance(o, dict):
-            return {str(k): walk(v) for k, v in o.items()}
-        if isinstance(o, (list, tuple)):
-            return [walk(v) for v in o]
-        return _plain(o)
-
-    typer.echo(json.dumps(walk(obj), indent=2, allow_nan=False))
-
-
 def _fmt(v, digits: int | None = None) -> str:
     """Numbers for tables: about six significant figures, fixed point."""
-    v = _plain(v)
+    v = plain(v)
     if v is None:
         return "-"
     if isinstance(v, bool):
@@ -136,14 +78,14 @@ def _fmt(v, digits: int | None = None) -> str:
 
 
 def _fmt_err(e) -> str:
-    e = _plain(e)
+    e = plain(e)
     if e is None:
         return "-"
     return "0.00" if abs(e) < 0.005 else f"{e:+.2f}"
 
 
 def _err_style(e) -> str:
-    e = _plain(e)
+    e = plain(e)
     if e is None:
         return "red"
     return "green" if abs(e) < 2.0 else "yellow" if abs(e) < 5.0 else "red"
@@ -244,14 +186,14 @@ def point(
     values.update({k: th.get(k, 0.0) for k in THETA_NAMES})
     values.update({k: s[k] for k in OUTPUT_NAMES})
     if as_json:
-        _echo_json({**values, "converged": converged, "residual_norm": s["residual_norm"],
+        echo_json({**values, "converged": converged, "residual_norm": s["residual_norm"],
                     "iterations": int(s["iterations"])})
     else:
         from rich.table import Table
 
         from engine_model.channels import UNITS
 
-        con = _console()
+        con = console()
         con.print(f"[bold]Engine model at alt {alt:g} ft, Mach {mach:g}, TRA {tra:g} %,"
                   f" T2 {values['T2']:.2f} degR[/]"
                   + "".join(f", {k} {v:+g}" for k, v in th.items()))
@@ -267,7 +209,7 @@ def point(
         con.print(f"converged: {converged}, max |r| = {float(s['residual_norm']):.1e},"
                   f" {int(s['iterations'])} Newton iterations")
     if not converged:
-        _fail(f"the steady state did not converge at alt {alt:g} ft, Mach {mach:g},"
+        fail(f"the steady state did not converge at alt {alt:g} ft, Mach {mach:g},"
               f" TRA {tra:g} %, T2 {values['T2']:.2f} degR"
               f" (max |r| = {float(s['residual_norm']):.1e}); outputs are NaN", code=2)
 
@@ -332,11 +274,11 @@ def envelope(
     with user_errors():
         rep = envelope_report(get_model(), n, seed)
     if as_json:
-        _echo_json(rep)
+        echo_json(rep)
         return
     from rich.table import Table
 
-    con = _console()
+    con = console()
     con.print(f"[bold]Envelope sweep: {n} random points, seed {seed}[/]")
     summary = Table(show_header=False)
     summary.add_column("what")
@@ -448,12 +390,12 @@ def reference(
         records = compare_reference(get_model(), ref)
     channels = [c for c in REFERENCE_CHANNELS if c in ref.columns]
     if as_json:
-        _echo_json(records)
+        echo_json(records)
     else:
         _print_reference(records, channels, path)
     bad = [r for r in records if not r["converged"]]
     if bad:
-        _fail(f"{path}: the steady state did not converge at row(s)"
+        fail(f"{path}: the steady state did not converge at row(s)"
               f" {', '.join(str(r['row']) for r in bad)}", code=2)
 
 
@@ -462,7 +404,7 @@ def _print_reference(records, channels, path):
 
     from engine_model.channels import UNITS
 
-    con = _console()
+    con = console()
     con.print("[bold]hyprog engine model versus C-MAPSS[/]")
     con.print(f"reference: {path}", soft_wrap=True)
     for rec in records:

@@ -454,6 +454,25 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     return _parse_metadata(schema_meta.get(META_KEY.encode()), str(file))
 
 
+def read_columns(path: str | os.PathLike) -> list[str]:
+    """The column names of a dataset (either format) without reading the table."""
+    p = _existing(path)
+    if _detect_format(p) == "h5":
+        with _open_h5(p) as f:
+            names: list[str] = []
+            for split in SPLITS:
+                if f"A_{split}" in f:
+                    for _, cols in _h5_split_groups(f, split, p).values():
+                        names += [c for c in cols if c not in names]
+            return canonical_columns(["t", *names])
+    file = _first_parquet_file(p)
+    try:
+        cols = list(pq.read_schema(file).names)
+    except (pa.ArrowException, OSError) as exc:
+        raise _arrow_error(file, exc) from None
+    return canonical_columns(["unit", *[c for c in cols if c != "unit"]])
+
+
 def _selected_columns(names: Sequence[str], columns: Sequence[str] | None,
                       source: str) -> list[str]:
     """The columns to return: ``unit``, ``cycle``, ``t`` (when present), then ``columns``."""
@@ -879,7 +898,7 @@ def _effects(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
-def _column_groups(columns: Sequence[str]) -> dict[str, list[str]]:
+def column_groups(columns: Sequence[str]) -> dict[str, list[str]]:
     groups = {
         "bookkeeping": [c for c in BOOKKEEPING if c in columns],
         "w": [c for c in W_NAMES if c in columns],
@@ -939,7 +958,7 @@ def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | None = None) -> di
         "totals": {"units": len(units), "rows": int(len(df)), "cycles": int(cycles.sum())},
         "sample_rate_hz": rate,
         "effects": _effects(meta),
-        "columns": _column_groups(list(df.columns)),
+        "columns": column_groups(list(df.columns)),
         "dev_units": sorted(u["unit"] for u in units if u["split"] == "dev"),
         "test_units": sorted(u["unit"] for u in units if u["split"] == "test"),
     }

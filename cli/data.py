@@ -1,0 +1,59 @@
+"""``hyprog data ...``: look at a fleet dataset (hyprog parquet or N-CMAPSS h5)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import console, echo_json, user_errors
+
+app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5).",
+                  no_args_is_help=True, pretty_exceptions_enable=False)
+
+
+@app.command("info")
+def info(
+    path: Annotated[Path, typer.Argument(help="Dataset: a parquet directory/file or an h5 file.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+):
+    """Summarise a dataset: units, split, cycles, rows, end of life, onset t_s, effects."""
+    from engine_model import datasets
+
+    with user_errors(path):
+        columns = datasets.read_columns(path)
+        df, meta = datasets.read_dataset(path, columns=[c for c in ("Fc", "hs") if c in columns])
+        rep = datasets.summarize(df, meta)
+        rep["columns"] = datasets.column_groups(columns)
+    if as_json:
+        echo_json(rep)
+        return
+    from rich.table import Table
+
+    out = console()
+    head = [f"{path}", f"{rep['totals']['units']} units", f"{rep['totals']['rows']:,} rows",
+            f"{rep['totals']['cycles']} cycles"]
+    if rep.get("sample_rate_hz"):
+        head.append(f"{rep['sample_rate_hz']:g} Hz")
+    for key in ("preset", "seed"):
+        if key in rep:
+            head.append(f"{key} {rep[key]}")
+    out.print(", ".join(head))
+    t = Table("unit", "split", "cycles", "rows", "EOL", "t_s", "Fc")
+    for u in rep["units"]:
+        t.add_row(str(u["unit"]), u["split"], str(u["cycles"]), f"{u['rows']:,}", str(u["eol"]),
+                  "-" if u["t_s"] is None else str(u["t_s"]), ",".join(map(str, u["Fc"])))
+    out.print(t)
+    eff = rep.get("effects") or []
+    out.print("effects: " + (", ".join(_effect_label(e) for e in eff) if eff else "none"))
+    out.print("columns: " + "; ".join(f"{g} ({len(c)})" for g, c in rep["columns"].items() if c))
+
+
+def _effect_label(e) -> str:
+    if isinstance(e, dict):
+        params = e.get("params") or {}
+        inner = ",".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}"
+                         for k, v in params.items())
+        return f"{e.get('name', '?')}" + (f":{inner}" if inner else "")
+    return str(e)
