@@ -58,7 +58,7 @@ import shutil
 import tempfile
 import uuid
 import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -391,6 +391,37 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
         for unit, rows in _unit_slices(units):
             _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
     return path
+
+
+@contextmanager
+def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | None = None
+                        ) -> Iterator[Callable[[pd.DataFrame], None]]:
+    """Stream a fleet to a parquet directory one unit at a time (the same layout as
+    :func:`write_parquet`), so a large fleet never has to be in memory at once::
+
+        with parquet_unit_writer(path, meta) as write_unit:
+            for df_unit in units:
+                write_unit(df_unit)
+
+    The directory appears only when the block completes; on any error nothing is left.
+    ``metadata`` is fixed when the writer opens (it goes into every part file).
+    """
+    path = Path(path)
+    source = str(path)
+    meta_json = _metadata_json(_metadata_for_write(metadata, source), source).encode()
+    written: set[int] = set()
+    with _atomic_output(path, directory=True) as tmp:
+        def write_unit(df: pd.DataFrame) -> None:
+            table = _prepare_for_write(df, source)
+            units = table["unit"].to_numpy()
+            body = table.drop(columns="unit")
+            for unit, rows in _unit_slices(units):
+                if unit in written:
+                    raise InputError(f"{source}: unit {unit} written twice")
+                written.add(unit)
+                _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
+
+        yield write_unit
 
 
 def _is_hive_by_unit(path: Path) -> bool:

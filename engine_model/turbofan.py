@@ -24,8 +24,11 @@ schedule (C-MAPSS), so ``Nf = Nf_des * PCNfR_dmd/100 * sqrt(T2/T_std)``, and the
 ``Wf`` is an output (through T40).
 
 Extension point. Every quantity that an optional physical effect may change passes through
-``hook(name, value)`` (see :mod:`engine_model.effects`), with the effect's own symbolic
-parameters in ``p``. With no effects the hooks return their input unchanged.
+``hook(name, value, **station)`` (see :mod:`engine_model.effects`, which lists the hooks and
+their station context), with the effect's own symbolic parameters in ``p``. The station
+keywords (e.g. a component's inlet ``T_in``, ``P_in`` and their design values) only inform
+the effects; with no effects the hooks return their input unchanged and ignore them, so the
+expression graph is the same as without the context.
 """
 
 import casadi as ca
@@ -40,8 +43,14 @@ N_UNKNOWNS = len(UNKNOWN_NAMES)
 X_DESIGN = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)
 
 
-def _no_hook(name, value):
+def _no_hook(name, value, **station):
     return value
+
+
+def _inlet(T_in, P_in, T_in_des, P_in_des):
+    """Station context of a component's modifier hooks: its inlet total state here and at
+    the design point (used e.g. by Reynolds-number effects)."""
+    return dict(T_in=T_in, P_in=P_in, T_in_des=float(T_in_des), P_in_des=float(P_in_des))
 
 
 def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
@@ -68,18 +77,22 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     n_fan = pct_dmd / 100.0
     Nf = s.Nf_rpm * n_fan * ca.sqrt(T2 / T_STD_K)
 
-    # --- fan ---
-    fan_eff = hook("fan_eff_mod", fan_eff)
-    fan_flow = hook("fan_flow_mod", fan_flow)
+    # --- fan (its modifier hooks see the free-stream Pt0: they precede the intake loss) ---
+    des = d.point  # design-point stations (SI)
+    at2 = _inlet(T2, Pt0, des["T2"], des["P2"] / (1.0 - d.dp_inlet))
+    fan_eff = hook("fan_eff_mod", fan_eff, **at2)
+    fan_flow = hook("fan_flow_mod", fan_flow, **at2)
     wc2 = d.fan.flow(n_fan, beta_fan, fan_flow)
-    P2 = hook("P2", Pt0 * (1.0 - d.dp_inlet * (wc2 / d.wc2_des) ** 2))
+    P2 = hook("P2", Pt0 * (1.0 - d.dp_inlet * (wc2 / d.wc2_des) ** 2), Pt0=Pt0)
     fan = components.compressor(d.fan, T2, P2, n_fan, beta_fan, fan_eff, fan_flow)
     W2, T21, P21 = fan["W"], fan["T_out"], fan["P_out"]
 
     # --- LPC (booster) on the core stream ---
     n_lpc = Nf / ca.sqrt(T21 / T_STD_K) / d.nrl_des
-    lpc = components.compressor(d.lpc, T21, P21, n_lpc, beta_lpc, hook("LPC_eff_mod", lpc_eff),
-                                hook("LPC_flow_mod", lpc_flow))
+    at21 = _inlet(T21, P21, des["T21"], des["P21"])
+    lpc = components.compressor(d.lpc, T21, P21, n_lpc, beta_lpc,
+                                hook("LPC_eff_mod", lpc_eff, **at21),
+                                hook("LPC_flow_mod", lpc_flow, **at21))
     W22, T24, P24 = lpc["W"], lpc["T_out"], lpc["P_out"]
 
     # --- bypass duct and nozzle ---
@@ -90,15 +103,17 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
                                        s.nozzle_cv)
 
     # --- LPC-HPC duct, HPC with coolant extraction ---
-    W_bleed_24 = hook("W_bleed_24", 0.0 * W22)  # handling / customer bleed at station 24
+    W_bleed_24 = hook("W_bleed_24", 0.0 * W22, W22=W22)  # handling / customer bleed at station 24
     W25_up = W22 - W_bleed_24
     wc24 = components.corrected_flow(W22, T24, P24)
     P25 = components.duct_loss(P24, wc24, d.wc24_des, s.dp_icd)
     T25 = T24
     NRc = n_hpc * d.nrc_des  # C-MAPSS corrects core speed on T24
     Nc = NRc * ca.sqrt(T24 / T_STD_K)
-    hpc = components.compressor(d.hpc, T25, P25, n_hpc, beta_hpc, hook("HPC_eff_mod", hpc_eff),
-                                 hook("HPC_flow_mod", hpc_flow))
+    at25 = _inlet(T25, P25, des["T24"], des["P25"])
+    hpc = components.compressor(d.hpc, T25, P25, n_hpc, beta_hpc,
+                                hook("HPC_eff_mod", hpc_eff, **at25),
+                                hook("HPC_flow_mod", hpc_flow, **at25))
     W25, T30, P30 = hpc["W"], hpc["T_out"], hpc["P_out"]
     W31 = d.f31 * W25
     W32 = d.f32 * W25
@@ -106,7 +121,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     h30 = gas.h(T30)
     h_int = h25 + s.f_interstage * (h30 - h25)
     T_int = gas.t_from_h(h_int, 0.0, T25 + (h_int - h25) / gas.cp(T25))
-    W_cust = hook("W_customer_bleed", 0.0 * W25)  # customer bleed at HPC exit
+    W_cust = hook("W_customer_bleed", 0.0 * W25, W25=W25, T30=T30,
+                  P30=P30)  # customer bleed at HPC exit
     P_hpc = W25 * (h_int - h25) + (W25 - W32) * (h30 - h_int)
 
     # --- burner ---
@@ -123,8 +139,10 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     m41 = components.mixer(W4, T40, far4, W31, T30, 0.0)
     W41, T41, far41 = m41["W"], m41["T"], m41["far"]
     pr_hpt = prh_rel * d.pr_hpt_des
-    hpt = components.turbine(d.hpt, T41, P40, far41, pr_hpt, Nc, hook("HPT_eff_mod", hpt_eff),
-                             hook("HPT_flow_mod", hpt_flow))
+    at41 = _inlet(T41, P40, des["T41"], des["P40"])
+    hpt = components.turbine(d.hpt, T41, P40, far41, pr_hpt, Nc,
+                             hook("HPT_eff_mod", hpt_eff, **at41),
+                             hook("HPT_flow_mod", hpt_flow, **at41))
     T48, P45, W48 = hpt["T_out"], hpt["P_out"], W41
     P_offtake = hook("P_offtake_HP", 0.0 * W25)  # W
 
@@ -132,8 +150,10 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     m49 = components.mixer(W48, T48, far41, W32, T_int, 0.0)
     W49, T49, far49 = m49["W"], m49["T"], m49["far"]
     pr_lpt = prl_rel * d.pr_lpt_des
-    lpt = components.turbine(d.lpt, T49, P45, far49, pr_lpt, Nf, hook("LPT_eff_mod", lpt_eff),
-                             hook("LPT_flow_mod", lpt_flow))
+    at49 = _inlet(T49, P45, des["T49"], des["P45"])
+    lpt = components.turbine(d.lpt, T49, P45, far49, pr_lpt, Nf,
+                             hook("LPT_eff_mod", lpt_eff, **at49),
+                             hook("LPT_flow_mod", lpt_flow, **at49))
     T50, P50, W50 = lpt["T_out"], lpt["P_out"], W49
     core = components.convergent_nozzle(P50, T50, far49, P_amb, hook("A8", d.A8), s.nozzle_cd,
                                         s.nozzle_cv)

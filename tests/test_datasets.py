@@ -457,3 +457,22 @@ def test_summarize_counts_on_a_constructed_table():
     assert [u["split"] for u in no_split["units"]] == ["dev", "dev"]
     assert [u["t_s"] for u in no_split["units"]] == [None, None]
     assert no_split["sample_rate_hz"] is None and no_split["effects"] == []
+
+
+def test_parquet_unit_writer_streams_the_same_layout(tmp_path):
+    df = make_fleet()
+    meta = {"preset": "stream", "seed": 3}
+    a = tmp_path / "whole"
+    b = tmp_path / "streamed"
+    datasets.write_parquet(df, a, meta)
+    with datasets.parquet_unit_writer(b, meta) as write_unit:
+        for _, part in df.groupby("unit", sort=True):
+            write_unit(part)
+    for f in sorted(a.rglob("*.parquet")):
+        assert f.read_bytes() == (b / f.relative_to(a)).read_bytes()
+    # an error mid-stream leaves nothing behind
+    c = tmp_path / "broken"
+    with pytest.raises(RuntimeError), datasets.parquet_unit_writer(c, meta) as write_unit:
+        write_unit(df[df.unit == df.unit.iloc[0]])
+        raise RuntimeError("simulated crash")
+    assert not c.exists() and not list(tmp_path.glob(".broken*"))
