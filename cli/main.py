@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from cli import model
+from cli import data, effects, model, simulate
 
 app = typer.Typer(
     name="hyprog",
@@ -14,6 +14,9 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 app.add_typer(model.app, name="model")
+app.add_typer(data.app, name="data")
+app.command("simulate")(simulate.simulate)
+app.command("effects")(effects.effects)
 
 
 def _version(value: bool):
