@@ -39,6 +39,8 @@ def simulate(
             raise CliError(f"--units {units}: expected comma-separated integers") from None
         effects = [parse_effect_spec(e) for e in (effect or [])]
         preset_obj = fleet.get_preset(preset)
+        if rate is not None:
+            fleet.check_rate(rate)
         n_units = len(fleet.select_units(preset_obj, unit_list))
         if as_json:
             path, report = fleet.simulate(preset_obj, out, unit_list, rate, seed, effects,

@@ -71,8 +71,7 @@ class CustomerBleed(Effect):
         Param("f_alt", "1/(10,000 ft)", 0.0, "change of the fraction per 10,000 ft", 0.002,
               (-0.005, 0.005)),
     )
-    moves = ("Wf", "T30", "T40", "T48", "T50", "Nc", "P30", "Ps30", "P40", "P50", "W31",
-             "W32", "W48", "W50", "SmHPC")
+    moves = ("Wf", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
 
@@ -88,7 +87,7 @@ class HPOfftake(Effect):
     name = "hp_offtake"
     description = "Shaft power taken from the HP spool by the accessory gearbox."
     params = (Param("P_kw", "kW", 0.0, "HP shaft power extraction", 150.0, (0.0, 400.0)),)
-    moves = ("Wf", "T40", "T48", "T50", "Nc", "P30", "SmHPC")
+    moves = ("Wf", "Nc", "T24", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
 
@@ -108,7 +107,7 @@ class Reynolds(Effect):
         Param("flow_ratio", "-", 0.5, "flow-capacity change / efficiency change", 0.5,
               (0.0, 1.0)),
     )
-    moves = ("Wf", "T24", "T30", "T40", "T48", "T50", "Nc", "P30", "P50")
+    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "P50")
     signature = {"SLS": {"Wf": 0, "T48": 0, "T50": 0, "Nc": 0},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1}}
 
@@ -134,8 +133,7 @@ class InletLoss(Effect):
         Param("dp", "-", 0.0, "fractional loss of P2 at Mach 0", 0.005, (0.0, 0.02)),
         Param("dp_ram", "-", 0.0, "additional fractional loss per Mach^2", 0.005, (0.0, 0.02)),
     )
-    moves = ("P2", "P21", "P15", "P24", "P30", "Ps30", "P40", "P45", "P50", "Wf", "T48",
-             "T50")
+    moves = ("Wf", "T50", "P15", "P2", "P21", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"P2": -1, "P21": -1, "P30": -1, "P50": -1},
                  "CRZ": {"P2": -1, "P21": -1, "P30": -1, "P50": -1}}
 
@@ -156,7 +154,7 @@ class NozzleArea(Effect):
         Param("dA18", "-", 0.0, "fractional change of the bypass nozzle throat area", 0.0,
               (-0.05, 0.05)),
     )
-    moves = ("P50", "T50", "P45", "T48", "Wf", "Nc", "P15", "SmFan")
+    moves = ("Wf", "Nc", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"P50": -1, "T50": -1}, "CRZ": {"P50": -1, "T50": -1}}
 
     def apply(self, hook, value, p, ctx):

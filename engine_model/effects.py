@@ -125,7 +125,9 @@ class Effect:
         Non-numeric constructor options (e.g. ``channel``), given as ``option=value`` in a spec.
     description : str
     moves : tuple of str
-        The output channels the effect moves (``"<channel>"`` for the channel option).
+        The measured channels (x_s) the effect moves by more than 0.1 % at its realistic
+        (``typical``) size at sea-level static or cruise (``"<channel>"`` for the channel
+        option); tested in ``tests/test_effects.py``.
     signature : dict
         ``{point label: {channel: +1 | -1 | 0}}`` at the effect's realistic size (see
         :mod:`engine_model.effect_library`); 0 means unchanged within 1e-9 relative.

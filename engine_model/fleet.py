@@ -221,6 +221,17 @@ def _p_rows(model, p_default, cycle):
 
 
 # ------------------------------------------------------------------------------ a fleet
+def check_rate(rate_hz) -> float:
+    """The sample rate [Hz] as a float; it must be 1 Hz divided by an integer (the flights are
+    generated at 1 Hz and decimated)."""
+    rate = float(rate_hz)
+    if (not np.isfinite(rate) or rate <= 0 or rate > 1.0
+            or abs(1.0 / rate - round(1.0 / rate)) > 1e-9):
+        raise InputError(f"--rate {rate:g}: the sample rate must be 1 Hz divided by an integer"
+                         " (1, 0.5, 0.1, ...)")
+    return rate
+
+
 def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
              units: Sequence[int] | None = None, rate_hz: float | None = None, seed: int = 0,
              effects: Sequence = (), record: str | None = None, fmt: str = "parquet",
@@ -234,10 +245,7 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
 
     p = get_preset(preset) if isinstance(preset, str) else preset
     specs = select_units(p, units)
-    rate = float(rate_hz if rate_hz is not None else p.rate_hz)
-    if rate <= 0 or rate > 1.0 or abs(1.0 / rate - round(1.0 / rate)) > 1e-9:
-        raise InputError(f"--rate {rate:g}: the sample rate must be 1 Hz divided by an integer"
-                         " (1, 0.5, 0.1, ...)")
+    rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
     rec = record or p.record
     steady, series = split_series_effects(effects)
     truth = model or EngineModel(effects=steady)

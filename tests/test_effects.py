@@ -1,0 +1,186 @@
+"""The effect library: neutral at defaults, the documented signature table, the sensor effects
+touch only their channel, user-registered effects, spec parsing, the dynamics lag."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from engine_model import OUTPUT_NAMES, XS_NAMES, EngineModel
+from engine_model.effect_library import Dynamics
+from engine_model.effects import (
+    Effect,
+    EffectSpecError,
+    Param,
+    describe_effects,
+    effect_from_dict,
+    parse_effect_spec,
+    register,
+    registry,
+)
+from tests.conftest import w_rows
+
+POINTS = {"SLS": (0.0, 0.0, 100.0), "CRZ": (35000.0, 0.8, 80.0)}
+W = w_rows(list(POINTS.values()))
+STEADY = sorted(n for n, c in registry().items() if not c.series)
+
+
+def _instance(cls):
+    return cls(channel="T48") if "channel" in cls.options else cls()
+
+
+def _typical(cls):
+    """Parameter vector at the effect's realistic size (context ``cycle`` = 20, an offset
+    without a typical size = 5 channel units)."""
+    vals = []
+    for q in cls.params:
+        if q.typical is not None:
+            vals.append(q.typical)
+        elif q.name == "cycle":
+            vals.append(20.0)
+        elif q.name == "offset":
+            vals.append(5.0)
+        else:
+            vals.append(q.default)
+    return np.array(vals)
+
+
+@pytest.fixture(scope="module")
+def effect_runs(model):
+    """For every steady effect: outputs at its defaults and at its typical size."""
+    runs = {}
+    for name in STEADY:
+        cls = registry()[name]
+        m = EngineModel(design=model.design, effects=[_instance(cls)], compiled=False)
+        y0 = m.evaluate(W, p=np.asarray(m.p_default, float))
+        y1 = m.evaluate(W, p=_typical(cls))
+        assert y0["converged"].all() and y1["converged"].all(), name
+        runs[name] = (cls, y0[list(OUTPUT_NAMES)].astype(float),
+                      y1[list(OUTPUT_NAMES)].astype(float))
+    return runs
+
+
+def test_every_effect_is_neutral_at_its_defaults(model, effect_runs):
+    base = model.evaluate(W)[list(OUTPUT_NAMES)].astype(float)
+    for name, (_, y0, _) in effect_runs.items():
+        np.testing.assert_allclose(y0.to_numpy(), base.to_numpy(), rtol=1e-9, err_msg=name)
+
+
+@pytest.mark.parametrize("name", STEADY)
+def test_signature_table(effect_runs, name):
+    cls, y0, y1 = effect_runs[name]
+    rel = (y1 - y0) / y0.abs()
+    assert set(cls.signature) == set(POINTS)
+    for i, label in enumerate(POINTS):
+        for ch, sign in cls.signature[label].items():
+            if ch == "<channel>":
+                assert rel.iloc[i]["T48"] > 1e-6, (name, label)
+            elif ch == "<others>":
+                others = rel.iloc[i].drop("T48")
+                assert (others.abs() < 1e-9).all(), (name, label, others[others.abs() >= 1e-9])
+            elif sign == 0:
+                assert abs(rel.iloc[i][ch]) < 1e-9, (name, label, ch)
+            else:
+                assert np.sign(rel.iloc[i][ch]) == sign and abs(rel.iloc[i][ch]) > 1e-5, (
+                    name, label, ch, rel.iloc[i][ch])
+    # the measured channels that move by more than 0.1 % at either point are exactly the
+    # ones the effect declares it moves
+    big = (rel[list(XS_NAMES)].abs() > 1e-3).any(axis=0)
+    moved = set(big.index[big.to_numpy()])
+    declared = {"T48" if m == "<channel>" else m for m in cls.moves}
+    assert moved == declared, (name, moved ^ declared)
+
+
+def test_customer_bleed_magnitude_is_physical(effect_runs):
+    """1.5 % of core flow bled at HPC exit costs of the order of 1-3 % fuel at fixed fan
+    speed (Walsh & Fletcher ch. 5: SFC penalty ~1-2 % per % of HP bleed)."""
+    _, y0, y1 = effect_runs["customer_bleed"]
+    dwf = (y1["Wf"] / y0["Wf"] - 1.0).to_numpy()
+    assert np.all((dwf > 0.005) & (dwf < 0.05))
+
+
+def test_reynolds_grows_with_altitude(model):
+    m = EngineModel(design=model.design, effects=[parse_effect_spec("reynolds")],
+                    compiled=False)
+    w = w_rows([(0, 0.0, 90), (15000, 0.6, 90), (30000, 0.8, 90), (40000, 0.8, 90)])
+    d = (m.evaluate(w, p=[0.05, 0.5])["T48"] - m.evaluate(w, p=[0.0, 0.5])["T48"]).to_numpy()
+    # sea level at part power: small (component inlets a little below design pressure)
+    assert abs(d[0]) < 0.1 * d[-1] and np.all(np.diff(d) > 0)
+
+
+def test_sensor_drift_grows_with_cycle(model):
+    m = EngineModel(design=model.design,
+                    effects=[parse_effect_spec("sensor_drift:channel=P30,rate=1e-3")],
+                    compiled=False)
+    w = w_rows([(0, 0, 100)] * 3)
+    p = m.effects.p_matrix(3, context={"cycle": np.array([0.0, 10.0, 20.0])})
+    y = m.evaluate(w, p=p)["P30"].to_numpy()
+    np.testing.assert_allclose(y / y[0], [1.0, 1.01, 1.02], rtol=1e-12)
+    assert m.effects.estimable == ("sensor_drift_P30.rate",)
+
+
+def test_user_registered_effect(model):
+    class FanFaceBias(Effect):
+        name = "test_t2_offset_p2"
+        params = (Param("dP", "psia", 0.0, "offset on P2", 0.1, (0.0, 1.0)),)
+
+        def apply(self, hook, value, p, ctx):
+            return value + p["dP"] if hook == "sensor:P2" else value
+
+    register(FanFaceBias)
+    try:
+        e = parse_effect_spec("test_t2_offset_p2:dP=0.25")
+        m = EngineModel(design=model.design, effects=[e], compiled=False)
+        w = w_rows([(0, 0, 100)])
+        assert m.evaluate(w)["P2"].iloc[0] == pytest.approx(
+            model.evaluate(w)["P2"].iloc[0] + 0.25, abs=1e-9)
+        assert "test_t2_offset_p2" in [d["name"] for d in describe_effects()]
+    finally:
+        from engine_model import effects as eff_mod
+        eff_mod._REGISTRY.pop("test_t2_offset_p2", None)
+
+
+def test_spec_round_trip_and_errors():
+    e = parse_effect_spec("sensor_bias:channel=T50,offset=3,gain=0.01")
+    assert e.name == "sensor_bias_T50" and e.values == {"offset": 3.0, "gain": 0.01}
+    assert effect_from_dict(e.to_dict()).values == e.values
+    assert parse_effect_spec(e.spec()).values == e.values
+    for bad, msg in [("nope", "unknown effect"), ("customer_bleed:f9=1", "no parameter"),
+                     ("customer_bleed:f0=abc", "must be a number"),
+                     ("sensor_bias:offset=1", "option 'channel' is required"),
+                     ("sensor_bias:channel=XYZ", "unknown channel"),
+                     ("customer_bleed:f0", "not param=value")]:
+        with pytest.raises(EffectSpecError, match=msg):
+            parse_effect_spec(bad)
+
+
+def test_dynamics_first_order_lag_is_exact():
+    tau = 5.0
+    t = np.arange(0.0, 60.0, 2.0)
+    u = np.where(t < 10.0, 1.0, 3.0)  # a step between t = 8 and t = 10 (linear ramp)
+    y = Dynamics.lag(u[:, None], t, tau)[:, 0]
+    # analytic response after the ramp, from the fine-grid solution of tau y' = u - y
+    tf = np.arange(0.0, 60.0, 1e-3)
+    uf = np.interp(tf, t, u)
+    yf = np.empty_like(tf)
+    yf[0] = 1.0
+    a = np.exp(-1e-3 / tau)
+    for k in range(1, len(tf)):  # exact for piecewise-constant steps of 1 ms: O(1e-4) error
+        yf[k] = a * yf[k - 1] + (1 - a) * 0.5 * (uf[k] + uf[k - 1])
+    np.testing.assert_allclose(y, np.interp(t, tf, yf), atol=1e-5)
+    # non-uniform sampling gives the same answer at common times
+    t2 = np.concatenate([t[:10], t[10:] + 0.5])
+    assert Dynamics.lag(u[:, None], t2, tau)[9, 0] == pytest.approx(y[9])
+
+
+def test_dynamics_on_a_flight_lags_spools_and_temperatures():
+    t = np.arange(0.0, 600.0, 1.0)
+    step = (t >= 100).astype(float)
+    df = pd.DataFrame({"t": t, "Nc": 9000 + 500 * step, "T48": 1900 + 100 * step,
+                       "P2": 14.0 + step})
+    e = parse_effect_spec("dynamics:tau_spool=2,tau_thermal=60")
+    out = e.apply_series(df)
+    assert out["P2"].equals(df["P2"])  # not a spool channel: untouched
+    k = 100 + 60  # one thermal time constant after the step
+    assert (out["T48"][k] - 1900) / 100 == pytest.approx(1 - np.exp(-60 / 60), abs=0.01)
+    assert (out["Nc"][102] - 9000) / 500 == pytest.approx(1 - np.exp(-2 / 2), abs=0.15)
+    assert out["Nc"].iloc[-1] == pytest.approx(9500, abs=1e-6)
