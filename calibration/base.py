@@ -17,12 +17,23 @@ State-space model shared by all (paper eq. 5-6)::
 - ``R_k``: the sensor noise of :mod:`engine_model.sensor_noise` (proportional to the reading;
   ``s = noise_scale``), evaluated at the measured reading (the difference to the noise-free
   reading is a fraction of a percent of sigma).
-- ``Q_k``: a random walk in **recorded operating time** ``dtau_k`` [h] (the time between
-  consecutive samples of the same flight, ``t`` column; one sample period across a flight
-  boundary or without a ``t`` column). ``q = drift_std_per_sqrt_h``, default 1e-3 per
-  sqrt(hour): the simulator's fastest degradation (abnormal HPT wear near end of life, about
-  0.2-0.3 % of efficiency per flight of 2-5 h, :mod:`engine_model.degradation`) is a change of
-  about 1-2 ``q sqrt(flight hours)``; normal wear (1e-4 per cycle) is far inside it.
+- ``Q_k``: a random walk in **operating time**, ``dtau_k`` [h] of operation before sample
+  ``k``; ``q = drift_std_per_sqrt_h``. Where the drift goes (``drift_per``):
+
+  * ``"cycle"`` (default when the data have a ``cycle`` column): theta is constant within a
+    flight and the wear of a whole flight enters at the first sample of the next cycle,
+    ``dtau`` = the recorded duration of the previous cycle (0 within a cycle). This is how
+    N-CMAPSS and our simulator define theta (one value per cycle), so it is the exact prior.
+  * ``"time"`` (default without ``cycle``): continuous wear, ``dtau`` = the time since the
+    previous sample of the same flight (``t`` column); one sample period across a flight
+    boundary or without ``t``.
+
+  Default ``q`` = 1e-3 per sqrt(hour). In the ``ds02`` preset the abnormal HPT wear is
+  steepest just before end of life, about 0.05-0.1 % of efficiency per flight of 2-5 h
+  (:mod:`engine_model.degradation`: about 3 % lost over 50-70 cycles along
+  ``exp(u) - 1 - u``), i.e. below 1 ``q sqrt(flight hours)``; normal wear (1e-4 per cycle) is
+  far inside it. Data that degrade faster (the ``tiny`` preset: 10-cycle lives) need a
+  larger ``q``.
 - Prior at the first sample ``N(prior_mean, prior_std^2)``; default mean 0 (new engine), std
   0.02 (ten times the simulator's initial wear, so the prior is weak but keeps an unobservable
   direction bounded). Non-estimated parameters are held at ``theta_fixed`` (default 0).
@@ -36,7 +47,10 @@ sensitivities ``S_k = R_k^{-1/2} dF/dtheta`` at the prior mean, up to
 
 While ``I`` is rank-deficient (smallest eigenvalue below ``observability_rtol`` times the
 largest) or a parameter's data-only standard deviation ``sqrt((I^-1)_jj)`` exceeds
-``observability_max_std`` (0.5: the whole unit cannot tell the parameter from +-50 %), the
+``observability_max_std`` (default 0.02, the default prior std: data that pin a parameter down
+less well than the prior already does say nothing useful about it; e.g. ``Nf`` and ``P2``
+alone, which the fan-speed control and the inlet fix, give HPT_eff_mod a data-only std of
+about 0.1 over two flights), the
 parameter with the largest weight in the weakest direction (or the largest std) is declared
 **unobservable**. Policy ``setup.unobservable``: ``"exclude"`` (default) holds it at its prior
 mean, reports NaN for its estimate and standard deviation, lists it in
@@ -101,9 +115,10 @@ class CalibrationSetup:
     ``theta_fixed`` values of the non-estimated theta (name -> value) [all 0]
     ``bounds``      box on every estimated theta [the model's envelope, (-0.15, 0.05)]
     ``sample_period_s`` sample period when the data have no ``t`` column [10 s]
+    ``drift_per``   ``"cycle"``, ``"time"`` or ``"auto"`` (module docstring) ["auto"]
     ``unobservable`` ``"exclude"`` or ``"raise"`` (module docstring) ["exclude"]
     ``observability_rtol`` / ``observability_max_std`` / ``observability_samples``
-                    the rank test of the Fisher information [1e-8 / 0.5 / 400]
+                    the rank test of the Fisher information [1e-8 / 0.02 / 400]
     """
 
     params: tuple = PAPER_THETA
@@ -115,9 +130,10 @@ class CalibrationSetup:
     theta_fixed: tuple = ()
     bounds: tuple = ENVELOPE.theta
     sample_period_s: float = DEFAULT_SAMPLE_PERIOD_S
+    drift_per: str = "auto"
     unobservable: str = "exclude"
     observability_rtol: float = 1e-8
-    observability_max_std: float = 0.5
+    observability_max_std: float = DEFAULT_PRIOR_STD
     observability_samples: int = 400
 
     def __post_init__(self):
@@ -162,6 +178,9 @@ class CalibrationSetup:
         lo, hi = self.bounds
         if not lo < hi:
             raise InputError(f"bounds: lower {lo} must be below upper {hi}")
+        if self.drift_per not in ("auto", "cycle", "time"):
+            raise InputError(f"drift_per must be 'auto', 'cycle' or 'time', "
+                             f"got {self.drift_per!r}")
         if self.unobservable not in ("exclude", "raise"):
             raise InputError(f"unobservable policy must be 'exclude' or 'raise', "
                              f"got {self.unobservable!r}")
@@ -225,7 +244,10 @@ class UnitSeries:
     """One unit's data as arrays, checked.
 
     ``w`` (N, 4), ``y`` (N, m) readings of ``sensors``, ``sigma`` (N, m) their noise std,
-    ``dt_h`` (N,) operating time since the previous sample [h] (0 at the first),
+    ``dt_h`` (N,) operating time since the previous sample [h] (0 at the first; one sample
+    period across a flight boundary), ``dtau_h`` (N,) the drift time before each sample
+    (``setup.drift_per``: equal to ``dt_h``, or the previous cycle's duration at a cycle's
+    first sample and 0 elsewhere),
     ``cycle`` (N,) or None, ``index`` the input rows' labels, ``unit`` the unit label or None.
     """
 
@@ -233,6 +255,7 @@ class UnitSeries:
     y: np.ndarray
     sigma: np.ndarray
     dt_h: np.ndarray
+    dtau_h: np.ndarray
     sensors: tuple
     index: pd.Index
     cycle: np.ndarray | None = None
@@ -243,7 +266,7 @@ class UnitSeries:
 
     def q_diag(self, setup: CalibrationSetup) -> np.ndarray:
         """(N,) variance of the random-walk step before each sample (same for every theta)."""
-        return setup.drift_std_per_sqrt_h ** 2 * self.dt_h
+        return setup.drift_std_per_sqrt_h ** 2 * self.dtau_h
 
 
 def _where(unit, source) -> str:
@@ -297,6 +320,7 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
     sigma = sigma_abs(y, sensors, scale=setup.noise_scale)
     n = len(df)
     cycle = df["cycle"].to_numpy() if "cycle" in df.columns else None
+    period = setup.sample_period_s
     if "t" in df.columns:
         t = df["t"].to_numpy(float)
         if not np.all(np.isfinite(t)):
@@ -304,16 +328,30 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
             raise InputError(f"{where}row {index[i]}, column t: value is {t[i]}")
         dt = np.diff(t, prepend=t[0])
         pos = dt[dt > 0]
-        period = float(np.median(pos)) if pos.size else setup.sample_period_s
+        period = float(np.median(pos)) if pos.size else period
         new = dt <= 0
         if cycle is not None:
             new |= np.diff(cycle, prepend=cycle[0]) != 0
         dt = np.where(new, period, dt)
     else:
-        dt = np.full(n, setup.sample_period_s)
+        dt = np.full(n, period)
     dt[0] = 0.0
-    return UnitSeries(w=w, y=y, sigma=sigma, dt_h=dt / 3600.0, sensors=sensors, index=index,
-                      cycle=cycle, unit=unit)
+    per = setup.drift_per
+    if per == "auto":
+        per = "cycle" if cycle is not None else "time"
+    if per == "cycle":
+        if cycle is None:
+            raise InputError(f"{where}drift per cycle needs a 'cycle' column")
+        starts = np.flatnonzero(np.diff(cycle, prepend=cycle[0]) != 0)
+        # a cycle's recorded duration: the spacing of its samples, one period for the first
+        durations = np.add.reduceat(dt, np.concatenate([[0], starts]))
+        durations[0] += period
+        dtau = np.zeros(n)
+        dtau[starts] = durations[:-1]
+    else:
+        dtau = dt.copy()
+    return UnitSeries(w=w, y=y, sigma=sigma, dt_h=dt / 3600.0, dtau_h=dtau / 3600.0,
+                      sensors=sensors, index=index, cycle=cycle, unit=unit)
 
 
 # ----------------------------------------------------------------------------- Fisher / rank
@@ -333,7 +371,8 @@ def fisher_information(S: np.ndarray) -> np.ndarray:
     return np.einsum("nmi,nmj->ij", S, S)
 
 
-def observability_split(info: np.ndarray, rtol: float = 1e-8, max_std: float = 0.5):
+def observability_split(info: np.ndarray, rtol: float = 1e-8,
+                        max_std: float = DEFAULT_PRIOR_STD):
     """Greedy rank test of a Fisher information (module docstring). Returns ``(keep,
     dropped, rank)``: indices into its rows of the observable and unobservable parameters and
     the numerical rank of ``info``."""
