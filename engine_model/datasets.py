@@ -76,7 +76,8 @@ from .validation import InputError, check_columns
 __all__ = [
     "BOOKKEEPING", "REQUIRED_COLUMNS", "META_KEY", "SAMPLE_RATE_KEY", "NCMAPSS_SOURCE",
     "write_parquet", "read_parquet", "read_metadata", "write_ncmapss_h5", "read_ncmapss_h5",
-    "read_dataset", "write_dataset", "summarize", "canonical_columns",
+    "read_dataset", "write_dataset", "summarize", "canonical_columns", "written_units",
+    "write_unit_part", "remove_stale_temporaries",
 ]
 
 BOOKKEEPING = ("unit", "cycle", "t", "Fc", "hs", "RUL")
@@ -422,6 +423,56 @@ def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | N
                 _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
 
         yield write_unit
+
+
+def written_units(path: str | os.PathLike) -> list[int]:
+    """Units whose partition ``<path>/unit=<n>/part-0.parquet`` is complete (a resumable
+    writer's progress; see :func:`write_unit_part`). Empty when ``path`` does not exist."""
+    p = Path(path)
+    if not p.is_dir():
+        return []
+    out = []
+    for d in p.iterdir():
+        if d.is_dir() and d.name.startswith("unit=") and (d / PARQUET_PART).is_file():
+            try:
+                out.append(int(d.name.split("=", 1)[1]))
+            except ValueError:
+                continue
+    return sorted(out)
+
+
+def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
+                    metadata: Mapping[str, Any] | None = None) -> Path:
+    """Add one unit's rows to the parquet dataset directory ``path`` (created if needed), in
+    the layout of :func:`write_parquet`, atomically: the part file is written under a hidden
+    temporary name (which readers ignore) and renamed into place when complete, so an
+    interrupted writer leaves every unit either complete or absent. An existing partition of
+    the same unit is replaced. Returns the part file."""
+    path = Path(path)
+    source = str(path)
+    table = _prepare_for_write(df, source)
+    units = table["unit"].unique()
+    if len(units) != 1:
+        raise InputError(f"{source}: write_unit_part takes one unit, got {len(units)}")
+    meta_json = _metadata_json(_metadata_for_write(metadata, source), source).encode()
+    unit_dir = path / f"unit={int(units[0])}"
+    unit_dir.mkdir(parents=True, exist_ok=True)
+    target = unit_dir / PARQUET_PART
+    with _atomic_output(target, directory=False) as tmp:
+        _write_part(table.drop(columns="unit"), tmp, meta_json)
+    return target
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> int:
+    """Delete the hidden temporaries an interrupted writer left under ``path``; returns how
+    many were removed."""
+    p = Path(path)
+    if not p.is_dir():
+        return 0
+    stale = [q for q in p.rglob(".*.tmp-*")]
+    for q in stale:
+        _remove(q)
+    return len(stale)
 
 
 def _is_hive_by_unit(path: Path) -> bool:

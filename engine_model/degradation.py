@@ -19,7 +19,12 @@ flights' severities normalised to mean 1, so harder missions wear faster)::
     theta(c) = theta_0 + r D(c) + A d g((D(c) - D(t_s - 1)) / tau)  for c >= t_s (else no A)
     g(u) = exp(u) - 1 - u                  (zero value and slope at the onset: a smooth onset)
 
-- ``theta_0``: initial wear, every parameter ``-U(0, 1) x`` :data:`INITIAL_WEAR` (efficiencies
+- Which parameters wear: by default all ten; a preset may restrict initial wear and normal
+  degradation to the failure modes' components (``ds02`` and ``tiny``: the paper's HPT
+  efficiency, LPT efficiency and LPT flow, as N-CMAPSS DS02 degrades only "the affected system
+  components", Arias Chao et al. 2022, sec. 4), so that the paper's three-parameter
+  calibration model is correctly specified.
+- ``theta_0``: initial wear, every (wearing) parameter ``-U(0, 1) x`` :data:`INITIAL_WEAR` (efficiencies
   and flows up to 0.3 %); it consumes about 0-15 % of the health index
   (engine-to-engine variability about 10 % of HI; C-MAPSS (Saxena et al., PHM 2008) draws its
   initial wear of the same order).
@@ -119,11 +124,13 @@ def _draw(rng, lo_hi):
 
 
 def simulate_health(model, mode: str, eol, t_s, rng: np.random.Generator,
-                    severity: np.ndarray | None = None, hi_fn: HealthIndex | None = None
-                    ) -> HealthTrajectory:
+                    severity: np.ndarray | None = None, hi_fn: HealthIndex | None = None,
+                    wear_params=None) -> HealthTrajectory:
     """Draw one unit's health trajectory (module docstring). ``eol`` and ``t_s`` are (low,
     high) cycle ranges; ``severity`` the per-cycle damage of its flights (length >= eol high,
-    mean about 1; default all ones)."""
+    mean about 1; default all ones); ``wear_params`` the health parameters that carry initial
+    wear and normal degradation (default all ten; the others stay at 0 unless the failure
+    mode moves them). The random draws do not depend on ``wear_params``."""
     if mode not in MODES:
         raise InputError(f"unknown failure mode {mode!r}; one of {', '.join(MODES)}")
     hi_fn = hi_fn or HealthIndex(model)
@@ -138,6 +145,13 @@ def simulate_health(model, mode: str, eol, t_s, rng: np.random.Generator,
     D = np.cumsum(sev)
     theta0 = -rng.uniform(0.0, 1.0, n_th) * np.array([INITIAL_WEAR[t] for t in THETA_NAMES])
     rate = -rng.uniform(0.5, 1.5, n_th) * np.array([NORMAL_RATE[t] for t in THETA_NAMES])
+    if wear_params is not None:
+        unknown = [q for q in wear_params if q not in THETA_NAMES]
+        if unknown:
+            raise InputError(f"wear_params: unknown health parameter(s) {', '.join(unknown)}")
+        off = np.array([q not in wear_params for q in THETA_NAMES])
+        theta0[off] = 0.0
+        rate[off] = 0.0
     d = np.zeros(n_th)
     for name, (lo, hi) in MODES[mode].items():
         d[THETA_NAMES.index(name)] = -rng.uniform(lo, hi)

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from . import degradation, flight_profiles, sensor_noise
-from .channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from .channels import OUTPUT_NAMES, PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
 from .validation import InputError
 
 
@@ -66,6 +66,7 @@ class Preset:
     units: tuple[UnitSpec, ...]
     rate_hz: float = 0.1
     record: str = "above_10kft"
+    wear_params: tuple | None = None  # initial wear + normal degradation (None: all ten)
 
 
 def _ds02_units() -> tuple[UnitSpec, ...]:
@@ -92,14 +93,16 @@ def _ds02_units() -> tuple[UnitSpec, ...]:
 PRESETS: dict[str, Preset] = {
     "ds02": Preset(
         "ds02", "the paper's N-CMAPSS DS02 fleet: 6 development units (HPT, HPT+LPT modes), "
-        "3 test units (HPT+LPT; 14 and 15 fly shorter, lower flights)", _ds02_units()),
+        "3 test units (HPT+LPT; 14 and 15 fly shorter, lower flights)", _ds02_units(),
+        wear_params=PAPER_THETA),
     "tiny": Preset(
         "tiny", "four units with short flights and short lives, for tests and data_samples/",
         (UnitSpec(1, 1, "HPT", (10, 12), (4, 5), max_duration_h=1.3, n_routes=3),
          UnitSpec(2, 1, "HPT+LPT", (10, 12), (4, 5), max_duration_h=1.3, n_routes=3),
          UnitSpec(3, 1, "HPT+LPT", (9, 11), (4, 5), max_duration_h=1.3, n_routes=3),
          UnitSpec(4, 1, "HPT+LPT", (9, 11), (4, 5), split="test", max_duration_h=1.3,
-                  n_routes=3))),
+                  n_routes=3)),
+        wear_params=PAPER_THETA),
 }
 
 
@@ -153,7 +156,7 @@ def _flights(spec: UnitSpec, n: int, route_seed: int, flight_seed: int, rate_hz:
 
 def simulate_unit(model, spec: UnitSpec, seed: int = 0, rate_hz: float = 0.1,
                   record: str = "above_10kft", noise_scale: float = 1.0,
-                  p_default: np.ndarray | None = None, series_effects=()):
+                  p_default: np.ndarray | None = None, series_effects=(), wear_params=None):
     """Simulate one unit to failure with the truth ``model``; returns (DataFrame, info)."""
     route_seed, flight_seed, rng_health, rng_noise = _unit_rngs(seed, spec.unit)
     n_max = int(spec.eol[1])
@@ -162,7 +165,8 @@ def simulate_unit(model, spec: UnitSpec, seed: int = 0, rate_hz: float = 0.1,
     severity = np.array([f.severity * f.duration_h for f in flights])
     severity = severity / np.mean(severity)
     health = degradation.simulate_health(model, spec.mode, eol=spec.eol, t_s=spec.t_s,
-                                         rng=rng_health, severity=severity)
+                                         rng=rng_health, severity=severity,
+                                         wear_params=wear_params)
     eol = int(health.eol)
     flights = flights[:eol]
     sizes = np.array([len(f.t) for f in flights])
@@ -257,6 +261,7 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
         "units": {str(s.unit): {k: v for k, v in asdict(s).items() if k != "unit"}
                   for s in specs},
         "noise_scale": float(noise_scale),
+        "wear_params": list(p.wear_params) if p.wear_params is not None else list(THETA_NAMES),
     }
     report = SimulationReport()
     t0 = time.perf_counter()
@@ -264,7 +269,8 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
 
     def run():
         for k, s in enumerate(specs):
-            df, info = simulate_unit(truth, s, seed, rate, rec, noise_scale, p_def, series)
+            df, info = simulate_unit(truth, s, seed, rate, rec, noise_scale, p_def, series,
+                                     p.wear_params)
             report.rows[s.unit] = len(df)
             report.dropped[s.unit] = info["dropped"]
             report.eol[s.unit] = info["eol"]
