@@ -443,7 +443,9 @@ def check_observability(model, series: UnitSeries, setup: CalibrationSetup, x=No
     if apply_policy and obs.unobservable:
         msg = (f"{_where(series.unit, None)}health parameter(s) {', '.join(obs.unobservable)}"
                f" cannot be observed with sensors {', '.join(series.sensors)} (Fisher "
-               f"information rank {rank} of {setup.k})")
+               f"information rank {rank} of {setup.k}; a parameter also counts as "
+               f"unobservable when the data pin it down less than the prior std "
+               f"{setup.observability_max_std:g} does)")
         if setup.unobservable == "raise" or not obs.observable:
             raise UnobservableError(msg)
         warnings.warn(msg + "; held at the prior mean, reported as NaN",

@@ -87,7 +87,8 @@ def windowed_crb(S: np.ndarray, windows: np.ndarray, prior_cov: np.ndarray,
     gets :func:`window_crb` of its window (``windows`` (N,) labels, e.g. window number or
     cycle). With ``arrival``, each window starts from the previous window's information
     propagated through the random walk over the gap (``q_var`` (N,) summed over the window's
-    samples; an MHE with an exact arrival cost), else from the prior alone (``map_cycle``)."""
+    samples from the previous window's start to this one's, as the MHE inflates its arrival
+    cost; an MHE with an exact arrival cost), else from the prior alone (``map_cycle``)."""
     S = np.asarray(S, float)
     n, _, k = S.shape
     P0 = np.asarray(prior_cov, float)
@@ -97,15 +98,15 @@ def windowed_crb(S: np.ndarray, windows: np.ndarray, prior_cov: np.ndarray,
     starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
     ends = np.r_[starts[1:], n]
     out = np.empty((n, k, k))
-    cov_prev = None
+    cov_prev, s_prev = None, 0
     for s0, s1 in zip(starts, ends, strict=True):
         if arrival and cov_prev is not None:
-            Pa = cov_prev + np.sum(q[s0:s1]) * np.eye(k)
+            Pa = cov_prev + np.sum(q[s_prev + 1:s0 + 1]) * np.eye(k)
         else:
             Pa = P0
         cov = window_crb(S[s0:s1], np.linalg.inv(Pa))
         out[s0:s1] = cov
-        cov_prev = cov
+        cov_prev, s_prev = cov, s0
     return out
 
 

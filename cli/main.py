@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from cli import data, effects, model, simulate
+from cli import calibrate, data, effects, model, simulate
 
 app = typer.Typer(
     name="hyprog",
@@ -15,6 +15,7 @@ app = typer.Typer(
 )
 app.add_typer(model.app, name="model")
 app.add_typer(data.app, name="data")
+app.add_typer(calibrate.app, name="calibrate")
 app.command("simulate")(simulate.simulate)
 app.command("effects")(effects.effects)
 

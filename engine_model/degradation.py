@@ -24,8 +24,8 @@ flights' severities normalised to mean 1, so harder missions wear faster)::
   efficiency, LPT efficiency and LPT flow, as N-CMAPSS DS02 degrades only "the affected system
   components", Arias Chao et al. 2022, sec. 4), so that the paper's three-parameter
   calibration model is correctly specified.
-- ``theta_0``: initial wear, every (wearing) parameter ``-U(0, 1) x`` :data:`INITIAL_WEAR` (efficiencies
-  and flows up to 0.3 %); it consumes about 0-15 % of the health index
+- ``theta_0``: initial wear, every wearing parameter ``-U(0, 1) x`` :data:`INITIAL_WEAR`
+  (efficiencies and flows up to 0.3 %); it consumes about 0-15 % of the health index
   (engine-to-engine variability about 10 % of HI; C-MAPSS (Saxena et al., PHM 2008) draws its
   initial wear of the same order).
 - ``r``: normal degradation, every parameter ``-U(0.5, 1.5) x`` :data:`NORMAL_RATE` per unit

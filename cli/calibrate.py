@@ -1,0 +1,208 @@
+"""``hyprog calibrate DATA ...`` (features for the prognostics) and ``hyprog calibrate compare``.
+
+``calibrate`` is a group whose default command is ``run``: ``hyprog calibrate DATA --method
+ukf --out FEATURES`` is ``hyprog calibrate run DATA ...``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from typer.core import TyperGroup
+
+from cli.common import CliError, console, echo_json, user_errors
+
+
+class _DefaultRun(TyperGroup):
+    """A group that runs ``run`` when the first argument is not one of its commands."""
+
+    def parse_args(self, ctx, args):
+        if args and args[0] not in self.commands and args[0] not in ("--help", "-h"):
+            args = ["run", *args]
+        return super().parse_args(ctx, args)
+
+
+app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, add_completion=False,
+                  help="Estimate the health parameters theta(t) of every unit (UKF, EKF, "
+                       "MHE, MAP per cycle) and write the paper's feature table.")
+
+_METHODS = "ukf, ekf, mhe or map_cycle"
+
+
+def _list(text: str | None, what: str) -> tuple | None:
+    if text is None:
+        return None
+    items = tuple(s.strip() for s in text.split(",") if s.strip())
+    if not items:
+        raise CliError(f"{what}: empty list")
+    return items
+
+
+def _units(text: str | None):
+    if not text:
+        return None
+    try:
+        return [int(u) for u in text.split(",") if u.strip()]
+    except ValueError:
+        raise CliError(f"--units {text}: expected comma-separated integers") from None
+
+
+def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
+    from calibration import CalibrationSetup
+    from engine_model.channels import THETA_NAMES
+
+    kw = {}
+    p = _list(params, "--params")
+    if p is not None:
+        kw["params"] = THETA_NAMES if p == ("all",) else p
+    s = _list(sensors, "--sensors")
+    if s is not None:
+        kw["sensors"] = s
+    if drift is not None:
+        kw["drift_std_per_sqrt_h"] = drift
+    if noise_scale is not None:
+        kw["noise_scale"] = noise_scale
+    if prior_std is not None:
+        kw["prior_std"] = prior_std
+    if drift_per is not None:
+        kw["drift_per"] = drift_per
+    return CalibrationSetup(**kw)
+
+
+def _options(method, window, stride, mode, hessian):
+    if method in ("mhe",):
+        opts = {}
+        if window is not None:
+            opts["window"] = window
+        if stride is not None:
+            opts["stride"] = stride
+        if mode is not None:
+            opts["mode"] = mode
+        if hessian is not None:
+            opts["hessian"] = hessian
+        return opts
+    if method == "map_cycle" and hessian is not None:
+        return {"hessian": hessian}
+    given = [n for n, v in (("--window", window), ("--stride", stride), ("--mode", mode),
+                            ("--hessian", hessian)) if v is not None]
+    if given:
+        raise CliError(f"{', '.join(given)}: options of the mhe method, not {method}")
+    return {}
+
+
+Params = Annotated[str | None, typer.Option(
+    "--params", help="Comma-separated health parameters to estimate, or 'all' [the paper's "
+    "HPT_eff_mod,LPT_eff_mod,LPT_flow_mod].")]
+Sensors = Annotated[str | None, typer.Option(
+    "--sensors", help="Comma-separated measured channels to use [every x_s in the data].")]
+Drift = Annotated[float | None, typer.Option(
+    "--drift", help="Random-walk std of theta per sqrt(hour) [1e-3].")]
+NoiseScale = Annotated[float | None, typer.Option(
+    "--noise-scale", help="Multiplier of the documented sensor noise in R [1].")]
+PriorStd = Annotated[float | None, typer.Option("--prior-std", help="Prior std of theta [0.02].")]
+DriftPer = Annotated[str | None, typer.Option(
+    "--drift-per", help="cycle, time or auto [auto: cycle when the data have cycles].")]
+Units = Annotated[str | None, typer.Option("--units", help="Comma-separated units [all].")]
+Jobs = Annotated[int, typer.Option("--jobs", help="Worker processes [1].")]
+Scheduler = Annotated[str | None, typer.Option(
+    "--scheduler", help="Dask scheduler address (tcp://host:port), or 'local' for a local "
+    "Dask cluster of --jobs workers.")]
+Window = Annotated[int | None, typer.Option("--window", help="mhe: samples per window [60].")]
+Stride = Annotated[int | None, typer.Option("--stride", help="mhe: window step [= window].")]
+Mode = Annotated[str | None, typer.Option(
+    "--mode", help="mhe: constant or random_walk theta in a window [constant].")]
+Hessian = Annotated[str | None, typer.Option(
+    "--hessian", help="mhe / map_cycle: gauss-newton or exact [gauss-newton].")]
+AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON report only.")]
+
+
+@app.command("run")
+def run(
+    data: Annotated[Path, typer.Argument(help="Dataset: parquet directory or N-CMAPSS h5.")],
+    out: Annotated[Path, typer.Option("--out", help="Feature table to write (parquet "
+                                      "directory by unit; a rerun resumes).")],
+    method: Annotated[str, typer.Option("--method", help=_METHODS)] = "ukf",
+    params: Params = None, sensors: Sensors = None, drift: Drift = None,
+    noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
+    units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
+    stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
+):
+    """Calibrate every unit and write the feature table [inputs, <x>_hat, <theta>_hat, std]."""
+    import warnings
+
+    from calibration import UnobservableWarning
+    from calibration.fleet import calibrate_fleet
+
+    with user_errors(), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnobservableWarning)
+        setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
+        opts = _options(method, window, stride, mode, hessian)
+        unit_list = _units(units)
+        if as_json:
+            res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
+                                  keep_results=False)
+        else:
+            from rich.progress import Progress
+
+            err = console(stderr=True)
+            with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
+                task = bar.add_task(f"calibrating ({method})", total=None)
+                res = calibrate_fleet(
+                    data, method, setup, opts, unit_list, jobs, scheduler, out,
+                    keep_results=False,
+                    progress=lambda d, n: bar.update(task, completed=d, total=n))
+    warned = sorted({str(w.message) for w in caught
+                     if issubclass(w.category, UnobservableWarning)})
+    rep = {"out": str(out), "method": method, "params": list(setup.params),
+           "units": {str(u): v for u, v in sorted(res.units.items())},
+           "skipped": res.skipped, "samples": res.samples, "seconds": round(res.seconds, 2),
+           "samples_per_second": res.samples_per_second, "warnings": warned}
+    if as_json:
+        echo_json(rep)
+        return
+    c = console()
+    for w in warned:
+        c.print(f"warning: {w}")
+    if res.skipped:
+        c.print(f"resumed: units {', '.join(map(str, res.skipped))} were already in {out}")
+    c.print(f"wrote {out}: {len(res.units)} unit(s), {res.samples:,} samples with {method} in "
+            f"{res.seconds:.1f} s ({res.samples_per_second:,.0f} samples/s)")
+
+
+@app.command("compare")
+def compare_cmd(
+    data: Annotated[Path, typer.Argument(help="Simulated dataset (with the true theta).")],
+    methods: Annotated[str, typer.Option("--methods", help="Comma-separated methods.")] =
+    "ukf,ekf,mhe,map_cycle",
+    params: Params = None, sensors: Sensors = None, drift: Drift = None,
+    noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
+    units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
+    stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
+):
+    """Each method against the truth: RMSE, bias, consistency, Cramér-Rao bound, whiteness,
+    speed."""
+    import warnings
+
+    from calibration import UnobservableWarning
+    from calibration.base import estimator_class
+    from calibration.compare import compare, format_report
+
+    with user_errors(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnobservableWarning)  # reported in the table
+        setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
+        names = _list(methods, "--methods")
+        for m in names:
+            estimator_class(m)
+        opts = {}
+        for m in names:
+            if m == "mhe":
+                opts[m] = _options(m, window, stride, mode, hessian)
+            elif m == "map_cycle" and hessian is not None:
+                opts[m] = {"hessian": hessian}
+        report = compare(data, names, setup, opts, _units(units), jobs, scheduler)
+    if as_json:
+        echo_json(report)
+        return
+    typer.echo(format_report(report))

@@ -1,0 +1,238 @@
+"""Fleet calibration: parallel workers and a local Dask cluster give the numbers of a serial
+run, resumable feature tables, the comparison against truth and the CRB, and the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from calibration import CalibrationSetup, get_estimator
+from calibration.base import HAT_NAMES, prepare_unit
+from calibration.compare import compare, format_report
+from calibration.crb import unit_posterior_crb, unit_sensitivities, windowed_crb
+from calibration.fleet import calibrate_fleet, features_of, plan_tasks
+from cli.main import app
+from engine_model import datasets
+from engine_model.channels import PAPER_THETA
+from tests.conftest import REPO
+
+TINY = REPO / "data_samples" / "tiny"
+SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)  # tiny: 10-cycle lives, fast wear
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """Units 1-3 of the committed tiny fleet, first three flights each, as a dataset."""
+    df, meta = datasets.read_dataset(TINY, units=[1, 2, 3])
+    df = df[df["cycle"] <= 3].reset_index(drop=True)
+    path = tmp_path_factory.mktemp("small") / "fleet"
+    datasets.write_parquet(df, path, meta)
+    return path, df
+
+
+@pytest.fixture(scope="module")
+def serial(small):
+    path, _ = small
+    return calibrate_fleet(path, "ukf", SETUP)
+
+
+def _same(run_a, run_b):
+    assert sorted(run_a.results) == sorted(run_b.results)
+    for u in run_a.results:
+        pd.testing.assert_frame_equal(run_a.features[u], run_b.features[u], rtol=1e-9,
+                                      atol=1e-12)
+
+
+def test_plan_balances_lockstep_groups_and_splits_windowed_methods():
+    lengths = {1: 100, 2: 90, 3: 60, 4: 50, 5: 40}
+    groups = plan_tasks(lengths, "ukf", 2)
+    loads = sorted(sum(lengths[u] for u in g) for g in groups)
+    # longest-processing-time first: 100+50+40 / 90+60
+    assert loads == [150, 190] and sorted(u for g in groups for u in g) == [1, 2, 3, 4, 5]
+    assert plan_tasks(lengths, "mhe", 2) == [[1], [2], [3], [4], [5]]
+
+
+def test_serial_run_equals_the_estimator_on_each_unit(serial, small):
+    _, df = small
+    est = get_estimator("ukf")
+    for u in (1, 3):
+        one = df[df["unit"] == u].reset_index(drop=True)
+        alone = est.estimate(one, SETUP)
+        np.testing.assert_allclose(serial.results[u].theta_hat.to_numpy(),
+                                   alone.theta_hat.to_numpy(), rtol=1e-9, atol=1e-12)
+    feats = features_of(serial)
+    assert len(feats) == len(df)
+    for c in (*HAT_NAMES, *(q + "_hat" for q in PAPER_THETA),
+              *(q + "_hat_std" for q in PAPER_THETA), *df.columns):
+        assert c in feats.columns
+    assert serial.samples == len(df) and serial.samples_per_second > 0
+
+
+def test_worker_processes_give_the_serial_numbers(serial, small):
+    path, _ = small
+    _same(serial, calibrate_fleet(path, "ukf", SETUP, jobs=2))
+
+
+def test_local_dask_cluster_gives_the_serial_numbers(serial, small):
+    pytest.importorskip("distributed")
+    path, _ = small
+    run = calibrate_fleet(path, "ukf", SETUP, jobs=2, scheduler="local")
+    assert run.workers == 2
+    _same(serial, run)
+
+
+def test_unreachable_scheduler_is_a_clear_error(small):
+    from engine_model import InputError
+
+    path, _ = small
+    with pytest.raises(InputError, match="tcp://127.0.0.1:9: cannot connect"):
+        calibrate_fleet(path, "ukf", SETUP, scheduler="tcp://127.0.0.1:9")
+
+
+def test_features_are_resumable_and_never_half_written(small, tmp_path, serial):
+    path, _ = small
+    out = tmp_path / "features"
+    first = calibrate_fleet(path, "ukf", SETUP, units=[2], out=out)
+    assert datasets.written_units(out) == [2] and not first.skipped
+    part = out / "unit=2" / "part-0.parquet"
+    stamp = part.stat().st_mtime_ns
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_first(done, total):
+        if done == 1:
+            raise Stop
+
+    # one unit per task (map_cycle would; here: ukf with 2 groups run serially) ...
+    with pytest.raises(Stop):
+        calibrate_fleet(path, "ukf", SETUP, out=out, progress=stop_after_first,
+                        jobs=1, units=[1, 3])
+    written = datasets.written_units(out)
+    assert 2 in written and len(written) == 2  # unit 2 plus the one finished before the stop
+    assert not list(out.rglob(".*tmp*"))
+    final = calibrate_fleet(path, "ukf", SETUP, out=out)
+    assert sorted(final.skipped) == written and part.stat().st_mtime_ns == stamp
+    feats, meta = datasets.read_dataset(out)
+    assert sorted(feats["unit"].unique()) == [1, 2, 3]
+    assert meta["calibration"]["method"] == "ukf" and meta["preset"] == "tiny"
+    ref = features_of(serial)
+    np.testing.assert_allclose(feats["HPT_eff_mod_hat"], ref["HPT_eff_mod_hat"], rtol=1e-9,
+                               atol=1e-12)
+    from engine_model import InputError
+
+    with pytest.raises(InputError, match="other settings"):
+        calibrate_fleet(path, "ekf", SETUP, out=out)
+
+
+def test_compare_reports_errors_and_bounds(small):
+    path, df = small
+    rep = compare(path, ("ukf", "map_cycle"), SETUP, units=[1])
+    one = df[df["unit"] == 1].reset_index(drop=True)
+    res = get_estimator("ukf").estimate(one, SETUP)
+    err = res.theta_hat.to_numpy() - one[list(PAPER_THETA)].to_numpy()
+    from calibration.base import default_model
+
+    series = prepare_unit(one, SETUP)
+    truth = one[list(PAPER_THETA)].to_numpy()
+    crb = unit_posterior_crb(default_model(), series, SETUP, truth)
+    S = unit_sensitivities(default_model(), series, SETUP, truth)
+    per_cycle = windowed_crb(S, one["cycle"].to_numpy(), np.diag(SETUP.prior_std_vec() ** 2),
+                             arrival=False)
+    for j, q in enumerate(PAPER_THETA):
+        p = rep["methods"]["ukf"]["params"][q]
+        assert p["rmse"] == pytest.approx(np.sqrt(np.mean(err[:, j] ** 2)), rel=1e-9)
+        assert p["bias"] == pytest.approx(np.mean(err[:, j]), rel=1e-9, abs=1e-15)
+        assert p["crb"] == pytest.approx(np.sqrt(np.mean(crb[:, j, j])), rel=1e-9)
+        assert 0.0 <= p["consistency"] <= 1.0
+        c = rep["methods"]["map_cycle"]["params"][q]
+        assert c["crb"] == pytest.approx(np.sqrt(np.mean(per_cycle[:, j, j])), rel=1e-9)
+    for m in ("ukf", "map_cycle"):
+        r = rep["methods"][m]
+        assert abs(r["residual_lag1_autocorrelation"]) < 1 and r["samples_per_second"] > 0
+    text = format_report(rep)
+    assert "### ukf" in text and "RMSE / CRB" in text
+    json.dumps(rep, allow_nan=True)
+
+
+def test_compare_needs_the_truth(small):
+    from engine_model import InputError
+
+    _, df = small
+    with pytest.raises(InputError, match="compare needs the true values of HPT_eff_mod"):
+        compare(df.drop(columns=["HPT_eff_mod"]), ("ukf",), SETUP)
+
+
+# ----------------------------------------------------------------------------- CLI
+runner = CliRunner()
+
+
+def test_cli_calibrate_writes_features_and_resumes(small, tmp_path):
+    path, df = small
+    out = tmp_path / "feat"
+    args = ["calibrate", str(path), "--method", "ukf", "--out", str(out), "--drift", "0.01",
+            "--units", "1,2"]
+    r = runner.invoke(app, [*args, "--json"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.output)
+    assert rep["samples"] == int(df["unit"].isin([1, 2]).sum()) and rep["skipped"] == []
+    r = runner.invoke(app, [*args, "--json"])
+    assert json.loads(r.output)["skipped"] == [1, 2]
+    feats, _ = datasets.read_dataset(out)
+    assert {"T48_hat", "W50_hat", "HPT_eff_mod_hat", "LPT_flow_mod_hat_std"} <= set(feats)
+    r = runner.invoke(app, ["calibrate", str(path), "--method", "ukf", "--out",
+                            str(tmp_path / "f2"), "--units", "1"])
+    assert r.exit_code == 0 and "wrote" in r.output
+
+
+def test_cli_calibrate_sensor_subset_reports_unobservable(small, tmp_path):
+    path, _ = small
+    r = runner.invoke(app, ["calibrate", str(path), "--method", "ekf", "--units", "1",
+                            "--sensors", "Nf,P2,P21", "--out", str(tmp_path / "f"), "--json"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.output)
+    assert rep["units"]["1"]["unobservable"] == ["LPT_eff_mod", "LPT_flow_mod"]
+    assert any("cannot be observed" in w for w in rep["warnings"])
+    feats, _ = datasets.read_dataset(tmp_path / "f")
+    assert feats["LPT_eff_mod_hat"].isna().all() and feats["HPT_eff_mod_hat"].notna().all()
+    # nothing observable: a one-line error, nothing written
+    r = runner.invoke(app, ["calibrate", str(path), "--method", "ekf", "--units", "1",
+                            "--sensors", "Nf,P2", "--out", str(tmp_path / "g")])
+    assert r.exit_code == 1 and "cannot be observed" in r.output
+    assert not (tmp_path / "g").exists()
+
+
+def test_cli_compare_json(small):
+    path, _ = small
+    r = runner.invoke(app, ["calibrate", "compare", str(path), "--methods", "ekf",
+                            "--units", "3", "--drift", "0.01", "--json"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.output)
+    assert set(rep["methods"]) == {"ekf"} and rep["methods"]["ekf"]["bound"] == "posterior"
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--method", "pf"], "unknown calibration method 'pf'"),
+    (["--params", "HPT_eff"], "unknown health parameter(s) HPT_eff"),
+    (["--sensors", "T99"], "unknown sensor(s) T99"),
+    (["--window", "30"], "--window: options of the mhe method, not ukf"),
+    (["--units", "1,x"], "expected comma-separated integers"),
+    (["--units", "42"], "42"),
+])
+def test_cli_bad_input_is_one_line(small, tmp_path, args, fragment):
+    path, _ = small
+    out = tmp_path / "f"
+    r = runner.invoke(app, ["calibrate", str(path), "--out", str(out), *args])
+    assert r.exit_code == 1
+    assert r.output.startswith("error:") and fragment in r.output
+    assert "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_cli_missing_data_file(tmp_path):
+    r = runner.invoke(app, ["calibrate", str(tmp_path / "nope"), "--out", str(tmp_path / "f")])
+    assert r.exit_code == 1 and "no such file" in r.output
