@@ -25,7 +25,7 @@ and per method: residual whiteness (the lag-1 autocorrelation of the normalised 
 within each flight, averaged over sensors and units, ~0 for white residuals, and their mean
 variance, ~1 for filter innovations when R is right), samples, non-converged samples or
 windows, wall time and samples per second of the calibration itself (the bound is computed
-afterwards and not timed).
+afterwards and not timed), and the RMSE of each unit.
 """
 
 from __future__ import annotations
@@ -132,12 +132,16 @@ def compare(data, methods: Sequence[str] = DEFAULT_METHODS, setup: CalibrationSe
                               progress=cb)
         wall = time.perf_counter() - t0
         kind = _bound_kind(method, opts)
-        errs, stds, bounds, lag1, rvar, nonconv = [], [], [], [], [], 0
+        errs, stds, bounds, lag1, rvar, nonconv, per_unit = [], [], [], [], [], 0, {}
         unobservable = set()
         for u, df in frames.items():
             res = run.results[u]
             truth = df[list(setup.params)].to_numpy(float)
             errs.append(res.theta_hat.to_numpy() - truth)
+            per_unit[u] = {"samples": len(df), **{
+                q: float(np.sqrt(np.nanmean(errs[-1][:, j] ** 2)))
+                if np.isfinite(errs[-1][:, j]).any() else None
+                for j, q in enumerate(setup.params)}}
             stds.append(res.theta_std.to_numpy())
             var, S_cache[u] = unit_bound(model, df, setup, kind, res.diagnostics,
                                          S_cache.get(u))
@@ -168,7 +172,7 @@ def compare(data, methods: Sequence[str] = DEFAULT_METHODS, setup: CalibrationSe
             "residual_variance": float(np.nanmean(rvar)),
             "n_nonconverged": nonconv, "unobservable": sorted(unobservable),
             "seconds": wall, "samples_per_second": run.samples / wall if wall > 0 else None,
-            "workers": run.workers,
+            "workers": run.workers, "rmse_per_unit": per_unit,
         }
     return report
 
@@ -196,7 +200,12 @@ def format_report(report: dict) -> str:
                   f"{f(m['samples_per_second'], ',.0f')} samples/s; non-converged "
                   f"{m['n_nonconverged']}; residual lag-1 autocorrelation "
                   f"{m['residual_lag1_autocorrelation']:+.3f}, variance "
-                  f"{m['residual_variance']:.2f}"]
+                  f"{m['residual_variance']:.2f}", "",
+                  "| unit | samples | " + " | ".join(f"RMSE {q}" for q in m["params"]) + " |",
+                  "|---|---|" + "---|" * len(m["params"])]
+        for u, row in m["rmse_per_unit"].items():
+            lines.append(f"| {u} | {row['samples']:,} | "
+                         + " | ".join(f(row[q], ".2e") for q in m["params"]) + " |")
     return "\n".join(lines)
 
 
