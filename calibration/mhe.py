@@ -48,8 +48,9 @@ information (a window flown at one operating point may see less than the unit; t
 cost then carries the rest).
 
 Default window: 60 samples (10 min at 0.1 Hz), non-overlapping, constant theta. Measured on
-this project's 2-core machine: about 700-1,100 samples/s per process on the ds02 fleet with the
-Gauss-Newton Hessian, 4-5 IPOPT iterations per window (``benchmarks/calibration_mhe.py``).
+this project's 2-core machine: the ds02 fleet at 0.1 Hz (749,561 samples) in 241 s on two
+worker processes, 3,107 samples/s, with the Gauss-Newton Hessian
+(``benchmarks/calibration.py``; table in the README).
 
 ``map_cycle`` is the simple reference: one constant theta per flight cycle from all that cycle's
 samples, with the same NLP, the prior only as regularisation (no arrival cost between cycles).
