@@ -12,8 +12,10 @@ compiled model for all lanes' points and numpy linear algebra on stacked (U, k, 
 Lanes are ordered by length, longest first, so the active lanes of a step are a prefix. The
 units stay independent: a lane's numbers do not depend on which other lanes run with it.
 
-Warm start. Each lane keeps the unknowns ``x`` of its model points of the previous step; at
-0.1 Hz a step moves ``w`` little and theta less, so Newton converges in 1-3 iterations. A point
+Warm start. Each lane keeps the unknowns ``x`` of its model points of the previous step and
+the LU factors of their last Jacobian (:class:`engine_model.model.JacobianStore`); at 0.1 Hz
+a step moves ``w`` little and theta less, so the Newton-chord iteration converges in 1-3
+residual evaluations without a fresh Jacobian (refreshed when convergence is slow). A point
 that does not converge from there is retried from the model's tabulated guess (with
 continuation, :meth:`EngineModel.solve`); if it still fails the lane skips the update of that
 sample (prediction only) and the sample is counted in ``diagnostics["n_nonconverged"]``.
@@ -32,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from engine_model.channels import OUTPUT_NAMES
+from engine_model.model import JacobianStore
 
 from .base import (
     CalibrationResult,
@@ -72,6 +75,7 @@ class LockstepFilter:
         self.P = np.tile(np.diag(setup.prior_std_vec() ** 2), (n_lanes, 1, 1))
         self.x = None  # (U, n_points, 7) after the first step
         self._maps: dict = {}
+        self._lu = None  # Jacobian factors of every lane's points, carried between steps
         self.iterations = 0
         self.solves = 0
         self.retries = 0
@@ -95,7 +99,13 @@ class LockstepFilter:
             x0 = self.model.initial_guess(W, th)
         else:
             x0 = self.x[:A].reshape(A * npt, -1)
-        r = self.model._newton(W, th, x0, None, self.tol, self.max_iter)
+        lu = None
+        if self.model.compiled:
+            if self._lu is None:
+                self._lu = JacobianStore.empty(len(self.m) * npt, x0.shape[1])
+            s = self._lu
+            lu = JacobianStore(s.LU[:A * npt], s.PIV[:A * npt], s.HAVE[:A * npt])
+        r = self.model._newton(W, th, x0, None, self.tol, self.max_iter, lu=lu)
         self.model._reject_off_map(r)
         self.iterations += int(r.iterations.sum())
         self.solves += len(W)
@@ -118,11 +128,11 @@ class LockstepFilter:
 
     def _serial(self, key, x, w, th):
         """Compiled function ``key`` of the model mapped serially over a batch padded to a
-        power of two (for the few dozen points of one step this is several times faster than
+        multiple of 8 (for the few dozen points of one step this is several times faster than
         :meth:`EngineModel.outputs_at`, whose thread map starts threads on every call).
         Returns the mapped outputs and the batch size."""
         n = len(x)
-        nb = max(8, 1 << int(np.ceil(np.log2(max(n, 1)))))
+        nb = max(8, -(-n // 8) * 8)
         f = self._maps.get((key, nb))
         if f is None:
             f = self._maps[(key, nb)] = self.model._f[key].map(nb, "serial")

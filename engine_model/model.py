@@ -50,16 +50,41 @@ _TABLE_T2 = (540.0, 470.0, 400.0)  # degR, descending
 
 
 def _load_newton_driver(library: str):
-    """``hyprog_newton_batch`` of the compiled library, typed for numpy arrays."""
+    """``hyprog_newton_batch_lu`` of the compiled library, typed for numpy arrays (the LU
+    arguments may be None)."""
     lib = ctypes.CDLL(library)
-    f = lib.hyprog_newton_batch
+    f = lib.hyprog_newton_batch_lu
     dbl = np.ctypeslib.ndpointer(np.float64, flags="C_CONTIGUOUS")
     i32 = np.ctypeslib.ndpointer(np.int32, flags="C_CONTIGUOUS")
     c_int = ctypes.c_int
+
+    def opt(t):
+        class Optional:  # an ndpointer that also accepts None (NULL)
+            @classmethod
+            def from_param(cls, obj):
+                return None if obj is None else t.from_param(obj)
+        return Optional
+
     f.argtypes = [c_int, c_int, c_int, c_int, c_int, dbl, dbl, dbl, dbl, dbl, i32, i32,
-                  ctypes.c_double, c_int, dbl, c_int]
+                  ctypes.c_double, c_int, dbl, c_int, opt(dbl), opt(i32), opt(i32)]
     f.restype = c_int
     return f
+
+
+@dataclass
+class JacobianStore:
+    """Per-point LU factors of the Newton Jacobian kept between calls of
+    :meth:`EngineModel._newton` (``lu=``): a point that was solved before starts its chord
+    iteration from its last factors instead of a fresh Jacobian (a time series whose
+    operating point and theta move little, e.g. the sigma points of a filter)."""
+
+    LU: np.ndarray  # (n, 49)
+    PIV: np.ndarray  # (n, 7) int32
+    HAVE: np.ndarray  # (n,) int32, 1 where LU holds factors
+
+    @classmethod
+    def empty(cls, n: int, nx: int = 7) -> JacobianStore:
+        return cls(np.zeros((n, nx * nx)), np.zeros((n, nx), np.int32), np.zeros(n, np.int32))
 
 
 @dataclass
@@ -329,10 +354,12 @@ class EngineModel:
         return x
 
     # ------------------------------------------------------------------ solving
-    def _newton(self, w, theta, x0, p=None, tol=1e-10, max_iter=30):
+    def _newton(self, w, theta, x0, p=None, tol=1e-10, max_iter=30,
+                lu: JacobianStore | None = None):
         """Solve a batch by damped Newton-chord: in compiled C across threads when the model
         is compiled (``newton_batch.c``), else in numpy (:meth:`_newton_python`); both run the
-        same iteration."""
+        same iteration. ``lu`` (compiled only): Jacobian factors carried between calls, one
+        row per point (:class:`JacobianStore`), read and updated in place."""
         if self._newton_c is None:
             return self._newton_python(w, theta, x0, p, tol, max_iter)
         n = len(w)
@@ -347,7 +374,8 @@ class EngineModel:
         conv = np.empty(n, np.int32)
         threads = self.n_threads if n >= 64 else 1
         rc = self._newton_c(n, X.shape[1], W.shape[1], TH.shape[1], P.shape[1], W, TH, P, X,
-                            rn, it, conv, float(tol), int(max_iter), _STEP_LIMIT, threads)
+                            rn, it, conv, float(tol), int(max_iter), _STEP_LIMIT, threads,
+                            *((None, None, None) if lu is None else (lu.LU, lu.PIV, lu.HAVE)))
         if rc != 0:
             raise RuntimeError(f"batched Newton driver failed (code {rc})")
         return SolveResult(x=X, converged=conv.astype(bool), residual_norm=rn,

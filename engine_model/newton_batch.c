@@ -87,10 +87,27 @@ static double max_abs(int n, const double *r) {
 /* Solve npts points. Row-major inputs: W (npts, nw), TH (npts, nth), P (npts, np),
  * X (npts, nx) in: starting guess, out: solution. Outputs RN (max|r|), IT (iterations),
  * CONV (1 converged). Returns 0, or -1 if nx is larger than MAXN. */
+int hyprog_newton_batch_lu(int npts, int nx, int nw, int nth, int np, const double *W,
+                           const double *TH, const double *P, double *X, double *RN, int *IT,
+                           int *CONV, double tol, int max_iter, const double *step_limit,
+                           int n_threads, double *LU, int *PIV, int *HAVE);
+
 int hyprog_newton_batch(int npts, int nx, int nw, int nth, int np, const double *W,
                         const double *TH, const double *P, double *X, double *RN, int *IT,
                         int *CONV, double tol, int max_iter, const double *step_limit,
                         int n_threads) {
+    return hyprog_newton_batch_lu(npts, nx, nw, nth, np, W, TH, P, X, RN, IT, CONV, tol,
+                                  max_iter, step_limit, n_threads, NULL, NULL, NULL);
+}
+
+/* As hyprog_newton_batch, with each point's Jacobian LU factors carried between calls:
+ * LU (npts, nx*nx), PIV (npts, nx), HAVE (npts). A point with HAVE = 1 starts the chord
+ * iteration from the stored factors instead of a fresh Jacobian (they are refreshed by the
+ * usual rule when convergence is slow); on return every point stores its last factors. */
+int hyprog_newton_batch_lu(int npts, int nx, int nw, int nth, int np, const double *W,
+                           const double *TH, const double *P, double *X, double *RN, int *IT,
+                           int *CONV, double tol, int max_iter, const double *step_limit,
+                           int n_threads, double *LU, int *PIV, int *HAVE) {
     if (nx > MAXN) return -1;
     CINT a1, r1, iw1, w1, a2, r2, iw2, w2;
     CAT(RES_FN, _work)(&a1, &r1, &iw1, &w1);
@@ -120,6 +137,12 @@ int hyprog_newton_batch(int npts, int nx, int nw, int nth, int np, const double 
                 arg[2] = TH + (size_t)pt * nth;
                 arg[3] = P + (size_t)pt * np;
                 for (int i = 0; i < nx; ++i) { x_old[i] = x[i]; dx_old[i] = 0.0; }
+                if (LU && HAVE[pt]) {
+                    memcpy(J, LU + (size_t)pt * nx * nx, sizeof(double) * (size_t)(nx * nx));
+                    memcpy(piv, PIV + (size_t)pt * nx, sizeof(int) * (size_t)nx);
+                    need_j = 0;
+                    have_lu = 1;
+                }
                 for (int it = 0; it <= max_iter; ++it) {
                     int fresh = need_j;
                     arg[0] = x;
@@ -169,6 +192,13 @@ int hyprog_newton_batch(int npts, int nx, int nw, int nth, int np, const double 
                 RN[pt] = rn_final;
                 IT[pt] = iters;
                 CONV[pt] = conv;
+                if (LU) {
+                    HAVE[pt] = have_lu && conv;
+                    if (HAVE[pt]) {
+                        memcpy(LU + (size_t)pt * nx * nx, J, sizeof(double) * (size_t)(nx * nx));
+                        memcpy(PIV + (size_t)pt * nx, piv, sizeof(int) * (size_t)nx);
+                    }
+                }
             }
         }
         free(arg); free(res); free(iw); free(work);

@@ -670,3 +670,32 @@ def test_rescued_point_reports_the_iterations_it_used(model):
     res = model.solve(w, x0=np.array([[3.0, 3.0, 3.0, 0.6, 0.5, 0.5, 0.5]]), max_iter=4)
     assert res.converged[0]
     assert res.iterations[0] > 4 + 20
+
+
+def test_newton_with_carried_jacobians_reaches_the_same_roots(model):
+    """Chord iteration from the previous call's LU factors (the filters' warm start) converges
+    to the roots of a fresh-Jacobian solve, and stores factors for every converged point."""
+    from engine_model.model import JacobianStore
+
+    if not model.compiled:
+        pytest.skip("LU carrying is a feature of the compiled driver")
+    rng = np.random.default_rng(3)
+    n = 40
+    w = np.column_stack([rng.uniform(20000, 38000, n), rng.uniform(0.6, 0.8, n),
+                         rng.uniform(60, 90, n), rng.uniform(420, 460, n)])
+    th = np.zeros((n, 10))
+    th[:, 6] = rng.uniform(-0.02, 0, n)
+    first = model.solve(w, th)
+    assert first.converged.all()
+    store = JacobianStore.empty(n)
+    model._newton(w, th, first.x, lu=store)
+    assert store.HAVE.all()
+    # the next sample: w and theta move a little; start from the last roots and factors
+    w2 = w + np.array([50.0, 0.002, 0.5, 0.3])
+    th2 = th.copy()
+    th2[:, 6] -= 5e-4
+    carried = model._newton(w2, th2, first.x, lu=store)
+    fresh = model._newton(w2, th2, first.x)
+    assert carried.converged.all() and fresh.converged.all()
+    np.testing.assert_allclose(carried.x, fresh.x, rtol=1e-8, atol=1e-10)
+    assert np.all(carried.residual_norm < 1e-10)
