@@ -26,7 +26,8 @@ class _DefaultRun(TyperGroup):
 
 app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, add_completion=False,
                   help="Estimate the health parameters theta(t) of every unit (UKF, EKF, "
-                       "MHE, MAP per cycle) and write the paper's feature table.")
+                       "MHE, MAP per cycle) and write the paper's feature table. "
+                       "'hyprog calibrate DATA --out F' is 'hyprog calibrate run DATA --out F'.")
 
 _METHODS = "ukf, ekf, mhe or map_cycle"
 
@@ -129,7 +130,7 @@ def run(
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
     stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
 ):
-    """Calibrate every unit and write the feature table [inputs, <x>_hat, <theta>_hat, std]."""
+    """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std)."""
     import warnings
 
     from calibration import UnobservableWarning
