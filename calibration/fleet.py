@@ -41,7 +41,7 @@ import pandas as pd
 from engine_model import datasets
 from engine_model.validation import InputError
 
-from .base import CalibrationResult, CalibrationSetup, estimator_class
+from .base import CalibrationSetup, estimator_class
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
 
@@ -206,9 +206,8 @@ def _check_resume(out: Path, calib_meta: dict) -> list[int]:
     if not done:
         return []
     old = datasets.read_metadata(out).get("calibration", {})
-    keys = ("method", "options", "setup")
-    if any(old.get(k) != calib_meta.get(k) for k in keys):
-        diff = [k for k in keys if old.get(k) != calib_meta.get(k)]
+    diff = [k for k in ("method", "options", "setup") if old.get(k) != calib_meta.get(k)]
+    if diff:
         raise InputError(f"{out}: holds units calibrated with other settings "
                          f"({', '.join(diff)} differ: method {old.get('method')!r}); choose "
                          "another output or delete it")
@@ -314,5 +313,4 @@ def features_of(run: FleetRun) -> pd.DataFrame:
     return pd.concat([run.features[u] for u in sorted(run.features)], ignore_index=True)
 
 
-__all__ = ["FleetRun", "calibrate_fleet", "features_of", "plan_tasks", "run_task",
-           "CalibrationResult"]
+__all__ = ["FleetRun", "calibrate_fleet", "features_of", "plan_tasks", "run_task"]

@@ -54,42 +54,28 @@ def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
     from calibration import CalibrationSetup
     from engine_model.channels import THETA_NAMES
 
-    kw = {}
-    p = _list(params, "--params")
-    if p is not None:
-        kw["params"] = THETA_NAMES if p == ("all",) else p
-    s = _list(sensors, "--sensors")
-    if s is not None:
-        kw["sensors"] = s
-    if drift is not None:
-        kw["drift_std_per_sqrt_h"] = drift
-    if noise_scale is not None:
-        kw["noise_scale"] = noise_scale
-    if prior_std is not None:
-        kw["prior_std"] = prior_std
-    if drift_per is not None:
-        kw["drift_per"] = drift_per
+    p, s = _list(params, "--params"), _list(sensors, "--sensors")
+    kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
+                drift_std_per_sqrt_h=drift, noise_scale=noise_scale, prior_std=prior_std,
+                drift_per=drift_per)
     return CalibrationSetup(**kw)
 
 
+def _given(**kw) -> dict:
+    """The options the user gave (those not None)."""
+    return {k: v for k, v in kw.items() if v is not None}
+
+
 def _options(method, window, stride, mode, hessian):
-    if method in ("mhe",):
-        opts = {}
-        if window is not None:
-            opts["window"] = window
-        if stride is not None:
-            opts["stride"] = stride
-        if mode is not None:
-            opts["mode"] = mode
-        if hessian is not None:
-            opts["hessian"] = hessian
-        return opts
-    if method == "map_cycle" and hessian is not None:
-        return {"hessian": hessian}
-    given = [n for n, v in (("--window", window), ("--stride", stride), ("--mode", mode),
-                            ("--hessian", hessian)) if v is not None]
-    if given:
-        raise CliError(f"{', '.join(given)}: options of the mhe method, not {method}")
+    """Estimator options of ``method``; MHE options given to another method are an error."""
+    mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
+    if method == "mhe":
+        return mhe
+    if method == "map_cycle" and set(mhe) <= {"hessian"}:
+        return mhe
+    if mhe:
+        raise CliError(f"{', '.join('--' + k for k in mhe)}: options of the mhe method, "
+                       f"not {method}")
     return {}
 
 
@@ -196,12 +182,8 @@ def compare_cmd(
         names = _list(methods, "--methods")
         for m in names:
             estimator_class(m)
-        opts = {}
-        for m in names:
-            if m == "mhe":
-                opts[m] = _options(m, window, stride, mode, hessian)
-            elif m == "map_cycle" and hessian is not None:
-                opts[m] = {"hessian": hessian}
+        mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
+        opts = {"mhe": mhe, "map_cycle": _given(hessian=hessian)}
         report = compare(data, names, setup, opts, _units(units), jobs, scheduler)
     if as_json:
         echo_json(report)
