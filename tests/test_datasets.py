@@ -24,6 +24,8 @@ from engine_model.channels import (
     XV_NAMES,
 )
 from engine_model.datasets import (
+    ncmapss_h5,
+    parquet,
     read_dataset,
     read_metadata,
     read_ncmapss_h5,
@@ -134,11 +136,11 @@ def test_parquet_bytes_are_deterministic(tmp_path, fleet):
 def test_parquet_hyprog_version_filled_in_when_absent(tmp_path, fleet):
     meta = {k: v for k, v in META.items() if k != "hyprog_version"}
     _, back = read_parquet(write_parquet(fleet, tmp_path / "f", meta))
-    assert back == {**meta, "hyprog_version": datasets._hyprog_version()}
+    assert back == {**meta, "hyprog_version": datasets.hyprog_version()}
 
 
 def _fail_on_second_part(monkeypatch):
-    real = datasets._write_part
+    real = parquet._write_part
     calls = []
 
     def flaky(*args, **kwargs):
@@ -147,7 +149,7 @@ def _fail_on_second_part(monkeypatch):
             raise RuntimeError("disk full")
         real(*args, **kwargs)
 
-    monkeypatch.setattr(datasets, "_write_part", flaky)
+    monkeypatch.setattr(parquet, "_write_part", flaky)
     return calls
 
 
@@ -376,14 +378,14 @@ def test_h5_splits_and_atomicity(tmp_path, fleet, monkeypatch):
         write_ncmapss_h5(fleet, tmp_path / "x.h5", {"dev_units": [2], "test_units": [5]})
 
     before = all_dev.read_bytes()
-    real = datasets._create
+    real = ncmapss_h5._create
 
     def failing(f, name, *args):
         if name == "X_v_test":
             raise OSError("disk full")
         real(f, name, *args)
 
-    monkeypatch.setattr(datasets, "_create", failing)
+    monkeypatch.setattr(ncmapss_h5, "_create", failing)
     with pytest.raises(OSError, match="disk full"):
         write_ncmapss_h5(fleet, all_dev, META)
     with pytest.raises(OSError, match="disk full"):

@@ -1,0 +1,70 @@
+"""Fleet data sets on disk: hyprog parquet and the N-CMAPSS h5 layout.
+
+One module per job; this package re-exports the public names of all of them, so
+``from engine_model.datasets import read_dataset, write_parquet`` is the import to use.
+
+==============  ===============================================================================
+module          what is inside
+==============  ===============================================================================
+``schema``      the table: column groups, canonical order, required columns, integer keys,
+                sorting and normalising a table, column selection
+``metadata``    the metadata JSON stored with a table (keys, version, sample rate)
+``atomic``      writing through a temporary sibling + ``os.replace``; stale temporaries
+``paths``       format detection (directory / suffix / magic bytes)
+``parquet``     hyprog parquet, partitioned by unit (the native format)
+``ncmapss_h5``  the N-CMAPSS h5 layout of the published files
+``dispatch``    :func:`read_dataset` / :func:`write_dataset` / :func:`read_metadata` /
+                :func:`read_columns` for either format
+``summary``     :func:`summarize` (``hyprog data info``)
+==============  ===============================================================================
+
+Each module's docstring describes its format. Reading data never imports CasADi or torch.
+"""
+
+from .atomic import remove_stale_temporaries
+from .dispatch import read_columns, read_dataset, read_metadata, write_dataset
+from .metadata import META_KEY, SAMPLE_RATE_KEY, hyprog_version
+from .ncmapss_h5 import (
+    DEFAULT_H5_RATE_HZ,
+    H5_CHUNK_ROWS,
+    H5_GROUPS,
+    H5_INT_GROUPS,
+    H5_REQUIRED,
+    NCMAPSS_SOURCE,
+    read_ncmapss_h5,
+    write_ncmapss_h5,
+)
+from .parquet import (
+    PARQUET_COMPRESSION,
+    PARQUET_PART,
+    parquet_unit_writer,
+    read_parquet,
+    write_parquet,
+    write_unit_part,
+    written_units,
+)
+from .paths import H5_SUFFIXES
+from .schema import (
+    BOOKKEEPING,
+    INT_KEYS,
+    INT_OPTIONAL,
+    REQUIRED_COLUMNS,
+    SPLITS,
+    canonical_columns,
+    column_groups,
+)
+from .summary import summarize
+
+# the pre-package private name, still imported by calibration.fleet; use hyprog_version
+_hyprog_version = hyprog_version
+
+__all__ = [
+    "BOOKKEEPING", "REQUIRED_COLUMNS", "INT_KEYS", "INT_OPTIONAL", "SPLITS", "META_KEY",
+    "SAMPLE_RATE_KEY", "NCMAPSS_SOURCE", "DEFAULT_H5_RATE_HZ", "PARQUET_PART",
+    "PARQUET_COMPRESSION", "H5_SUFFIXES", "H5_GROUPS", "H5_REQUIRED", "H5_INT_GROUPS",
+    "H5_CHUNK_ROWS",
+    "write_parquet", "read_parquet", "read_metadata", "read_columns", "write_ncmapss_h5",
+    "read_ncmapss_h5", "read_dataset", "write_dataset", "summarize", "canonical_columns",
+    "column_groups", "written_units", "write_unit_part", "parquet_unit_writer",
+    "remove_stale_temporaries", "hyprog_version",
+]

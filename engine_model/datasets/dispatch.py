@@ -1,0 +1,73 @@
+"""Read or write a dataset in either format, chosen by the path (:mod:`.paths`).
+
+parquet: a directory or a ``.parquet`` file (:mod:`.parquet`); N-CMAPSS h5: ``.h5`` /
+``.hdf5`` (:mod:`.ncmapss_h5`). The dev/test split of a parquet dataset comes from its
+metadata's ``dev_units`` / ``test_units``, of an h5 file from its arrays.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from ..validation import InputError
+from .ncmapss_h5 import read_h5_columns, read_h5_metadata, read_ncmapss_h5, write_ncmapss_h5
+from .parquet import read_parquet, read_parquet_columns, read_parquet_metadata, write_parquet
+from .paths import H5_SUFFIXES, detect_format, existing_path
+from .schema import check_split
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """The metadata of a parquet dataset or h5 file without reading the table."""
+    p = existing_path(path)
+    if detect_format(p) == "h5":
+        return read_h5_metadata(p)
+    return read_parquet_metadata(p)
+
+
+def read_columns(path: str | os.PathLike) -> list[str]:
+    """The column names of a dataset (either format) without reading the table."""
+    p = existing_path(path)
+    if detect_format(p) == "h5":
+        return read_h5_columns(p)
+    return read_parquet_columns(p)
+
+
+def read_dataset(path: str | os.PathLike, units: Sequence[int] | None = None,
+                 columns: Sequence[str] | None = None,
+                 split: str = "both") -> tuple[pd.DataFrame, dict[str, Any]]:
+    """Read parquet (a directory or ``.parquet`` file) or N-CMAPSS h5 (``.h5``/``.hdf5``).
+
+    ``split`` selects dev/test units: from the arrays for h5, from the metadata's
+    ``dev_units`` / ``test_units`` for parquet.
+    """
+    p = existing_path(path)
+    if detect_format(p) == "h5":
+        return read_ncmapss_h5(p, split=split, units=units, columns=columns)
+    check_split(split, p)
+    if split != "both":
+        key = f"{split}_units"
+        listed = read_parquet_metadata(p).get(key)
+        if listed is None:
+            raise InputError(f"{p}: the metadata has no {key}; cannot select split {split!r}")
+        listed = [int(u) for u in listed]
+        units = listed if units is None else [u for u in units if int(u) in set(listed)]
+    return read_parquet(p, units=units, columns=columns)
+
+
+def write_dataset(df: pd.DataFrame, path: str | os.PathLike,
+                  metadata: Mapping[str, Any] | None = None,
+                  format: str | None = None) -> Path:
+    """Write ``df`` as ``format`` ``"parquet"`` or ``"h5"``; None infers it from the suffix
+    (``.h5``/``.hdf5`` -> h5, anything else -> parquet)."""
+    p = Path(path)
+    fmt = format or ("h5" if p.suffix.lower() in H5_SUFFIXES else "parquet")
+    if fmt == "parquet":
+        return write_parquet(df, p, metadata)
+    if fmt in ("h5", "hdf5", "ncmapss-h5"):
+        return write_ncmapss_h5(df, p, metadata)
+    raise InputError(f"{p}: unknown format {format!r} (expected 'parquet' or 'h5')")

@@ -1,0 +1,93 @@
+"""A dataset's metadata: a JSON object stored with the table, written byte-for-byte
+deterministically.
+
+Metadata (a JSON-serialisable dict, unknown keys kept)
+------------------------------------------------------
+``preset`` (str), ``seed`` (int), ``effects`` (list of ``{"name": str, "params": dict}``),
+``sample_rate_hz`` (float; ``sample_rate`` is accepted when reading), ``hyprog_version``
+(filled in on write when absent), ``dev_units`` / ``test_units`` (lists of int), and
+``source_format`` (``"ncmapss-h5"``, set by :func:`~.ncmapss_h5.read_ncmapss_h5`;
+``"cmapss-text"``, set by :func:`~.cmapss.read_cmapss`). Nothing time-dependent is added, so
+the same table and metadata give the same bytes.
+
+Where it is stored: under the key ``META_KEY`` (``"hyprog"``) of every parquet part file's
+Arrow schema metadata, and as the root attribute of that name of an h5 file.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..validation import InputError
+
+META_KEY = "hyprog"  # parquet schema-metadata key and h5 root attribute
+SAMPLE_RATE_KEY = "sample_rate_hz"
+
+
+def json_default(obj: Any) -> Any:
+    """``json.dumps`` ``default``: numpy scalars and arrays, sets (sorted) and paths."""
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+
+
+def metadata_json(metadata: Mapping[str, Any] | None, source: str) -> str:
+    """Metadata as canonical JSON (sorted keys, no whitespace): the same dict, the same bytes."""
+    try:
+        return json.dumps(dict(metadata or {}), default=json_default, sort_keys=True,
+                          separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{source}: metadata is not JSON-serialisable ({exc})") from None
+
+
+def hyprog_version() -> str:
+    """The installed hyprog version, ``"unknown"`` in a source checkout that is not
+    installed (the value a writer records under ``hyprog_version``)."""
+    try:
+        from importlib.metadata import version
+
+        return version("hyprog")
+    except Exception:  # not installed (a source checkout on sys.path)
+        return "unknown"
+
+
+def metadata_for_write(metadata: Mapping[str, Any] | None, source: str) -> dict[str, Any]:
+    """The metadata a writer stores: a JSON round trip of ``metadata`` (so it is plain JSON
+    data) with ``hyprog_version`` filled in when absent."""
+    meta = json.loads(metadata_json(metadata, source))
+    if not isinstance(meta, dict):
+        raise InputError(f"{source}: metadata must be a dict")
+    meta.setdefault("hyprog_version", hyprog_version())
+    return meta
+
+
+def parse_metadata(raw: bytes | str | None, source: str) -> dict[str, Any]:
+    """The stored metadata JSON as a dict (``{}`` when there is none)."""
+    if raw is None:
+        return {}
+    try:
+        meta = json.loads(raw)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{source}: the '{META_KEY}' metadata is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{source}: the '{META_KEY}' metadata is not a JSON object")
+    return meta
+
+
+def sample_rate(meta: Mapping[str, Any], default: float | None = None) -> float | None:
+    """The metadata's sample rate [Hz] (``sample_rate_hz``, or the older ``sample_rate``)."""
+    for key in (SAMPLE_RATE_KEY, "sample_rate"):
+        if meta.get(key) is not None:
+            return float(meta[key])
+    return default

@@ -1,0 +1,263 @@
+"""hyprog parquet, the native dataset format: one table, partitioned by unit.
+
+Parquet (the native format)
+---------------------------
+A directory, hive-partitioned by unit: ``<path>/unit=<n>/part-0.parquet``; the part files do
+not hold ``unit`` (the directory name does). Each part file carries the metadata
+(:mod:`.metadata`) as JSON in its Arrow schema metadata under the key ``hyprog``; there is no
+sidecar. Columns keep the order they were written in, with ``unit`` first. Part files are
+zstd-compressed. :func:`read_parquet` also reads a single parquet file (``unit`` from a column,
+or from a ``unit=<n>`` parent directory). Files and directories whose name starts with ``.``
+or ``_`` are not read (a writer's temporaries, see :mod:`.atomic`).
+
+Writers: :func:`write_parquet` (a whole table), :func:`parquet_unit_writer` (a stream of
+units, the directory appears when the last is written) and :func:`write_unit_part` (one unit
+added to an existing directory, for resumable writers; :func:`written_units` lists what is
+complete).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.dataset as pds
+import pyarrow.parquet as pq
+
+from ..validation import InputError, check_columns
+from .atomic import atomic_output
+from .metadata import META_KEY, metadata_for_write, metadata_json, parse_metadata
+from .paths import PARQUET_MAGIC, existing_path, file_magic
+from .schema import (
+    REQUIRED_COLUMNS,
+    canonical_columns,
+    check_units_found,
+    normalise_table,
+    prepare_for_write,
+    selected_columns,
+)
+
+PARQUET_PART = "part-0.parquet"
+PARQUET_COMPRESSION = "zstd"
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+# ---------------------------------------------------------------------------------------------
+
+def _unit_slices(units: np.ndarray) -> Iterator[tuple[int, slice]]:
+    """(unit, row slice) for each run of equal values of a sorted ``units`` array."""
+    edges = np.flatnonzero(np.diff(units)) + 1
+    starts = np.concatenate(([0], edges))
+    stops = np.concatenate((edges, [len(units)]))
+    for a, b in zip(starts, stops, strict=True):
+        yield int(units[a]), slice(int(a), int(b))
+
+
+def _write_part(part: pd.DataFrame, file: Path, meta_json: bytes) -> None:
+    """One unit's rows (without ``unit``) to one parquet file, metadata in the schema."""
+    table = pa.Table.from_pandas(part, preserve_index=False)
+    # replace (not extend) the schema metadata: the pandas block holds library versions
+    table = table.replace_schema_metadata({META_KEY.encode(): meta_json})
+    file.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(table, file, compression=PARQUET_COMPRESSION)
+
+
+def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
+                  metadata: Mapping[str, Any] | None = None) -> Path:
+    """Write ``df`` as a parquet directory partitioned by unit (``unit=<n>/part-0.parquet``).
+
+    Rows are sorted by unit, cycle, t; ``metadata`` is stored as JSON under the schema metadata
+    key ``hyprog`` of every part file. The directory appears only when complete (see
+    :mod:`.atomic`). Returns the path written.
+    """
+    path = Path(path)
+    source = str(path)
+    table = prepare_for_write(df, source)
+    meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
+    units = table["unit"].to_numpy()
+    body = table.drop(columns="unit")
+    with atomic_output(path, directory=True) as tmp:
+        for unit, rows in _unit_slices(units):
+            _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
+    return path
+
+
+@contextmanager
+def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | None = None
+                        ) -> Iterator[Callable[[pd.DataFrame], None]]:
+    """Stream a fleet to a parquet directory one unit at a time (the same layout as
+    :func:`write_parquet`), so a large fleet never has to be in memory at once::
+
+        with parquet_unit_writer(path, meta) as write_unit:
+            for df_unit in units:
+                write_unit(df_unit)
+
+    The directory appears only when the block completes; on any error nothing is left.
+    ``metadata`` is fixed when the writer opens (it goes into every part file).
+    """
+    path = Path(path)
+    source = str(path)
+    meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
+    written: set[int] = set()
+    with atomic_output(path, directory=True) as tmp:
+        def write_unit(df: pd.DataFrame) -> None:
+            table = prepare_for_write(df, source)
+            units = table["unit"].to_numpy()
+            body = table.drop(columns="unit")
+            for unit, rows in _unit_slices(units):
+                if unit in written:
+                    raise InputError(f"{source}: unit {unit} written twice")
+                written.add(unit)
+                _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
+
+        yield write_unit
+
+
+def written_units(path: str | os.PathLike) -> list[int]:
+    """Units whose partition ``<path>/unit=<n>/part-0.parquet`` is complete (a resumable
+    writer's progress; see :func:`write_unit_part`). Empty when ``path`` does not exist."""
+    p = Path(path)
+    if not p.is_dir():
+        return []
+    out = []
+    for d in p.iterdir():
+        if d.is_dir() and d.name.startswith("unit=") and (d / PARQUET_PART).is_file():
+            try:
+                out.append(int(d.name.split("=", 1)[1]))
+            except ValueError:
+                continue
+    return sorted(out)
+
+
+def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
+                    metadata: Mapping[str, Any] | None = None) -> Path:
+    """Add one unit's rows to the parquet dataset directory ``path`` (created if needed), in
+    the layout of :func:`write_parquet`, atomically: the part file is written under a hidden
+    temporary name (which readers ignore) and renamed into place when complete, so an
+    interrupted writer leaves every unit either complete or absent. An existing partition of
+    the same unit is replaced. Returns the part file."""
+    path = Path(path)
+    source = str(path)
+    table = prepare_for_write(df, source)
+    units = table["unit"].unique()
+    if len(units) != 1:
+        raise InputError(f"{source}: write_unit_part takes one unit, got {len(units)}")
+    meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
+    unit_dir = path / f"unit={int(units[0])}"
+    unit_dir.mkdir(parents=True, exist_ok=True)
+    target = unit_dir / PARQUET_PART
+    with atomic_output(target, directory=False) as tmp:
+        _write_part(table.drop(columns="unit"), tmp, meta_json)
+    return target
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+# ---------------------------------------------------------------------------------------------
+
+def _is_hive_by_unit(path: Path) -> bool:
+    return any(p.is_dir() and p.name.startswith("unit=") for p in path.iterdir())
+
+
+def _parquet_files(path: Path) -> list[Path]:
+    files = sorted(p for p in path.rglob("*.parquet")
+                   if not any(part.startswith((".", "_")) for part in p.relative_to(path).parts))
+    if not files:
+        raise InputError(f"{path}: no parquet files in this directory")
+    return files
+
+
+def _unit_from_dir(file: Path) -> int | None:
+    name = file.parent.name
+    if name.startswith("unit="):
+        try:
+            return int(name.split("=", 1)[1])
+        except ValueError:
+            return None
+    return None
+
+
+def _arrow_error(path: Path, exc: Exception) -> InputError:
+    first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return InputError(f"{path}: not a readable parquet dataset ({first})")
+
+
+def _open_parquet(path: Path) -> tuple[pds.Dataset, int | None]:
+    """A pyarrow dataset over ``path`` and, for a lone part file, the unit of its directory."""
+    try:
+        if path.is_dir():
+            _parquet_files(path)
+            partitioning = None
+            if _is_hive_by_unit(path):
+                partitioning = pds.partitioning(pa.schema([("unit", pa.int64())]), flavor="hive")
+            return pds.dataset(path, format="parquet", partitioning=partitioning), None
+        dataset = pds.dataset(path, format="parquet")
+        unit = None if "unit" in dataset.schema.names else _unit_from_dir(path)
+        return dataset, unit
+    except (pa.ArrowException, OSError) as exc:
+        raise _arrow_error(path, exc) from None
+
+
+def _first_parquet_file(path: Path) -> Path:
+    return _parquet_files(path)[0] if path.is_dir() else path
+
+
+def read_parquet_metadata(path: Path) -> dict[str, Any]:
+    """The metadata of a parquet dataset directory or file (from its first part file)."""
+    file = _first_parquet_file(path)
+    try:
+        schema_meta = pq.read_schema(file).metadata or {}
+    except (pa.ArrowException, OSError) as exc:
+        raise _arrow_error(file, exc) from None
+    return parse_metadata(schema_meta.get(META_KEY.encode()), str(file))
+
+
+def read_parquet_columns(path: Path) -> list[str]:
+    """The column names of a parquet dataset (``unit`` included) in the schema order."""
+    file = _first_parquet_file(path)
+    try:
+        cols = list(pq.read_schema(file).names)
+    except (pa.ArrowException, OSError) as exc:
+        raise _arrow_error(file, exc) from None
+    return canonical_columns(["unit", *[c for c in cols if c != "unit"]])
+
+
+def read_parquet(path: str | os.PathLike, units: Sequence[int] | None = None,
+                 columns: Sequence[str] | None = None) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """Read a parquet dataset directory (or a single parquet file) -> ``(df, metadata)``.
+
+    ``units`` reads only those units (partition pruning); ``columns`` loads only those columns
+    besides ``unit``, ``cycle``, ``t``, which always come back. ``unit`` is int64, rows are
+    sorted by unit, cycle, t.
+    """
+    p = existing_path(path)
+    source = str(p)
+    if p.is_file() and file_magic(p)[:4] != PARQUET_MAGIC:
+        raise InputError(f"{source}: not a parquet file")
+    dataset, dir_unit = _open_parquet(p)
+    names = list(dataset.schema.names) + (["unit"] if dir_unit is not None else [])
+    check_columns(names, REQUIRED_COLUMNS, what=source)
+    wanted = selected_columns(names, columns, source)
+    file_columns = [c for c in wanted if c in dataset.schema.names]
+    flt = None
+    if units is not None and dir_unit is None:
+        flt = pds.field("unit").isin([int(u) for u in units])
+    try:
+        df = dataset.to_table(columns=file_columns, filter=flt).to_pandas()
+    except (pa.ArrowException, OSError) as exc:
+        raise _arrow_error(p, exc) from None
+    if dir_unit is not None:
+        df.insert(0, "unit", np.full(len(df), dir_unit, dtype=np.int64))
+        if units is not None and dir_unit not in set(int(u) for u in units):
+            df = df.iloc[:0]
+    if units is not None:
+        check_units_found(df["unit"].unique(), units, source)
+    df = normalise_table(df[wanted], source)
+    return df, read_parquet_metadata(p)

@@ -1,0 +1,52 @@
+"""Paths and format detection: which of the two on-disk formats a path holds.
+
+A directory is a parquet dataset; a file is N-CMAPSS h5 by its suffix (``.h5``, ``.hdf5``,
+``.he5``) or parquet by ``.parquet`` / ``.pq``; failing that, by its magic bytes
+(``\\x89HDF\\r\\n\\x1a\\n`` for HDF5, ``PAR1`` for parquet).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ..validation import InputError
+
+H5_SUFFIXES = (".h5", ".hdf5", ".he5")
+PARQUET_SUFFIXES = (".parquet", ".pq")
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+PARQUET_MAGIC = b"PAR1"
+
+
+def existing_path(path: str | os.PathLike) -> Path:
+    """``path`` as a Path; InputError when nothing is there."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file or directory")
+    return p
+
+
+def file_magic(path: Path) -> bytes:
+    """The first 8 bytes of a file."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def detect_format(path: Path) -> str:
+    """'parquet' or 'h5' from the path (directory, suffix) or, failing that, the magic bytes."""
+    if path.is_dir():
+        return "parquet"
+    suffix = path.suffix.lower()
+    if suffix in H5_SUFFIXES:
+        return "h5"
+    if suffix in PARQUET_SUFFIXES:
+        return "parquet"
+    head = file_magic(path)
+    if head.startswith(HDF5_MAGIC):
+        return "h5"
+    if head.startswith(PARQUET_MAGIC):
+        return "parquet"
+    raise InputError(f"{path}: not a parquet dataset or an N-CMAPSS h5 file (unknown format)")

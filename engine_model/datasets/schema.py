@@ -1,0 +1,167 @@
+"""The fleet table's schema: column groups, canonical order, checks and normalisation.
+
+Schema (one row per sample; the N-CMAPSS names of ``channels``)
+----------------------------------------------------------------
+bookkeeping  ``unit`` (int64), ``cycle`` (int64), ``t`` (float64, s since the start of the
+             flight record), ``Fc`` (flight class 1/2/3), ``hs`` (1 healthy, 0 abnormal),
+             ``RUL`` (cycles); ``Fc``/``hs``/``RUL`` are int64 when every value is an integer
+w            ``alt Mach TRA T2``
+x_s          ``channels.XS_NAMES`` (16), x_v ``channels.XV_NAMES`` (11) and ``phi``
+theta        ``channels.THETA_NAMES`` (10)
+
+Only ``unit cycle alt Mach TRA T2`` are required; any sensor, virtual or truth channel may be
+absent (a user's file), and further columns are kept. ``unit`` and ``cycle`` must not be NaN.
+Tables are returned sorted by ``unit, cycle, t`` with a fresh RangeIndex.
+
+Splits: a dataset's units are either development (``dev``) or test units (``SPLITS``); which
+is which is recorded in the metadata (:mod:`.metadata`) or, for h5, by the arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..channels import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from ..validation import InputError, check_columns
+
+BOOKKEEPING = ("unit", "cycle", "t", "Fc", "hs", "RUL")
+REQUIRED_COLUMNS = ("unit", "cycle", *W_NAMES)
+INT_KEYS = ("unit", "cycle")  # must be integers, never NaN
+INT_OPTIONAL = ("Fc", "hs", "RUL")  # int64 when every value is an integer
+SORT_KEYS = ("unit", "cycle", "t")
+SPLITS = ("dev", "test")
+CANONICAL = (*BOOKKEEPING, *W_NAMES, *XS_NAMES, *XV_NAMES, "phi", *THETA_NAMES)
+
+
+def canonical_columns(columns: Iterable[str]) -> list[str]:
+    """``columns`` in the schema order (bookkeeping, w, x_s, x_v, phi, theta), others after."""
+    cols = list(columns)
+    known = [c for c in CANONICAL if c in cols]
+    return known + [c for c in cols if c not in known]
+
+
+def column_groups(columns: Sequence[str]) -> dict[str, list[str]]:
+    """The present ``columns`` by schema group: ``bookkeeping``, ``w``, ``x_s``, ``x_v``
+    (with ``phi``), ``theta`` and ``other`` (everything else, in the given order)."""
+    groups = {
+        "bookkeeping": [c for c in BOOKKEEPING if c in columns],
+        "w": [c for c in W_NAMES if c in columns],
+        "x_s": [c for c in XS_NAMES if c in columns],
+        "x_v": [c for c in (*XV_NAMES, "phi") if c in columns],
+        "theta": [c for c in THETA_NAMES if c in columns],
+    }
+    known = {c for names in groups.values() for c in names}
+    groups["other"] = [c for c in columns if c not in known]
+    return groups
+
+
+def check_unique(columns: Sequence[str], source: str) -> None:
+    """InputError naming the duplicated column names, if any."""
+    seen: set[str] = set()
+    dup = sorted({c for c in columns if c in seen or seen.add(c)})
+    if dup:
+        raise InputError(f"{source}: duplicate column(s) {', '.join(dup)}")
+
+
+def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
+    """``unit``/``cycle`` to int64 (NaN or fractions are errors); Fc/hs/RUL to int64 if exact;
+    ``t`` to float64."""
+    out = {}
+    for name in INT_KEYS:
+        col = df[name]
+        if col.dtype == np.int64:
+            continue
+        values = col.to_numpy(dtype=np.float64, na_value=np.nan)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            row = df.index[int(np.flatnonzero(bad)[0])]
+            raise InputError(f"{source}: column {name} is NaN (or missing) at row {row}")
+        frac = values != np.round(values)
+        if frac.any():
+            row = df.index[int(np.flatnonzero(frac)[0])]
+            raise InputError(f"{source}: column {name} = {values[frac][0]:g} at row {row} is"
+                             " not an integer")
+        out[name] = values.astype(np.int64)
+    for name in INT_OPTIONAL:
+        if name in df.columns and df[name].dtype != np.int64:
+            values = df[name].to_numpy(dtype=np.float64, na_value=np.nan)
+            if np.isfinite(values).all() and (values == np.round(values)).all():
+                out[name] = values.astype(np.int64)
+    if "t" in df.columns and df["t"].dtype != np.float64:
+        out["t"] = df["t"].to_numpy(dtype=np.float64, na_value=np.nan)
+    return df.assign(**out) if out else df
+
+
+def sort_keys(df: pd.DataFrame) -> list[str]:
+    """The present ones of ``unit, cycle, t``: the order rows are kept in."""
+    return [c for c in SORT_KEYS if c in df.columns]
+
+
+def is_sorted(df: pd.DataFrame, keys: Sequence[str]) -> bool:
+    """True when rows are already in lexicographic order of ``keys``."""
+    if len(df) < 2:
+        return True
+    arrays = [df[k].to_numpy() for k in keys]
+    undecided = np.ones(len(df) - 1, dtype=bool)  # pairs equal on all keys so far
+    for a in arrays:
+        lo, hi = a[:-1], a[1:]
+        if (undecided & (hi < lo)).any():
+            return False
+        undecided &= hi == lo
+    return True
+
+
+def normalise_table(df: pd.DataFrame, source: str, unit_first: bool = True) -> pd.DataFrame:
+    """Check and coerce the bookkeeping columns, sort by unit, cycle, t, reset the index."""
+    if not isinstance(df, pd.DataFrame):
+        raise InputError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
+    check_unique(list(df.columns), source)
+    check_columns(list(df.columns), INT_KEYS, what=source)
+    df = as_int_keys(df, source)
+    keys = sort_keys(df)
+    if not is_sorted(df, keys):
+        df = df.sort_values(keys, kind="stable")
+    df = df.reset_index(drop=True)
+    if unit_first and df.columns[0] != "unit":
+        df = df[["unit", *[c for c in df.columns if c != "unit"]]]
+    return df
+
+
+def prepare_for_write(df: pd.DataFrame, source: str) -> pd.DataFrame:
+    """A table a writer may store: the required columns present, at least one row,
+    normalised (:func:`normalise_table`)."""
+    if not isinstance(df, pd.DataFrame):
+        raise InputError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
+    check_columns(list(df.columns), REQUIRED_COLUMNS, what=source)
+    if len(df) == 0:
+        raise InputError(f"{source}: the table has no rows")
+    return normalise_table(df, source)
+
+
+def selected_columns(names: Sequence[str], columns: Sequence[str] | None,
+                     source: str) -> list[str]:
+    """The columns to return: ``unit``, ``cycle``, ``t`` (when present), then ``columns``."""
+    if columns is None:
+        return list(names)
+    missing = [c for c in columns if c not in names]
+    if missing:
+        raise InputError(f"{source}: no column(s) {', '.join(missing)} in the file"
+                         f" (has {', '.join(names)})")
+    keys = [k for k in SORT_KEYS if k in names]
+    return keys + [c for c in columns if c not in keys]
+
+
+def check_units_found(found: np.ndarray, units: Sequence[int], source: str) -> None:
+    """InputError naming the requested ``units`` that are not among ``found``."""
+    missing = sorted(set(int(u) for u in units) - set(found.tolist()))
+    if missing:
+        raise InputError(f"{source}: unit(s) {', '.join(map(str, missing))} not in the file")
+
+
+def check_split(split: str, source: object) -> None:
+    """``split`` is ``"dev"``, ``"test"`` or ``"both"``."""
+    if split not in ("both", *SPLITS):
+        raise InputError(f"{source}: split must be 'dev', 'test' or 'both', got {split!r}")
