@@ -1,12 +1,40 @@
-"""hyprog.engine_model: 0D two-spool high-bypass turbofan performance model in CasADi."""
+"""hyprog.engine_model: 0D two-spool high-bypass turbofan performance model in CasADi.
+
+The light names (channel groups, ``InputError``, ``ENVELOPE``) are imported eagerly; the
+model and the design (which import CasADi) load on first use through a module
+``__getattr__`` (PEP 562), so ``from engine_model import EngineModel`` works while
+``import engine_model.datasets`` (reading data) never imports CasADi.
+"""
+
+from importlib import import_module
 
 from .channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
-from .design import DesignSpec, EngineDesign, design_engine
-from .model import EngineModel, ResidualSystem, SolveResult
 from .validation import ENVELOPE, InputError
+
+# name -> submodule that defines it, imported when the name is first asked for
+_LAZY = {
+    "EngineModel": "model",
+    "ResidualSystem": "model",
+    "SolveResult": "model",
+    "DesignSpec": "design",
+    "EngineDesign": "design",
+    "design_engine": "design",
+}
 
 __all__ = [
     "EngineModel", "ResidualSystem", "SolveResult", "DesignSpec", "EngineDesign",
     "design_engine", "InputError", "ENVELOPE", "OUTPUT_NAMES", "THETA_NAMES", "W_NAMES",
     "XS_NAMES", "XV_NAMES",
 ]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
