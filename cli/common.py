@@ -31,12 +31,11 @@ def user_errors(source: object = None) -> Iterator[None]:
     import pandas as pd
 
     from engine_model import InputError
-    from engine_model.effects import EffectSpecError
 
     where = f"{source}: " if source is not None else ""
     try:
         yield
-    except (CliError, InputError, EffectSpecError) as e:
+    except (CliError, InputError) as e:
         fail(f"{where}{e}")
     except FileNotFoundError as e:
         fail(f"{e.filename or source}: no such file")

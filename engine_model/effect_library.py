@@ -1,4 +1,4 @@
-"""The library of optional physical effects (see :mod:`engine_model.effects` for the hooks).
+"""The library of optional physical effects (see :mod:`engine_model.effect_base` for the hooks).
 
 Every effect is off by default: at its parameters' defaults it leaves every output unchanged.
 ``hyprog effects`` lists them with their parameters, units, realistic sizes and signatures.
@@ -56,7 +56,7 @@ from __future__ import annotations
 import numpy as np
 
 from .channels import OUTPUT_NAMES
-from .effects import Effect, EffectSpecError, Param, register
+from .effect_base import Effect, EffectSpecError, Param, register
 
 COMPONENT_MODS = ("fan", "LPC", "HPC", "HPT", "LPT")
 

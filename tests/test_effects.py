@@ -16,7 +16,9 @@ from engine_model.effects import (
     parse_effect_spec,
     register,
     registry,
+    unregister,
 )
+from engine_model.validation import InputError
 from tests.conftest import w_rows
 
 POINTS = {"SLS": (0.0, 0.0, 100.0), "CRZ": (35000.0, 0.8, 80.0)}
@@ -135,8 +137,8 @@ def test_user_registered_effect(model):
             model.evaluate(w)["P2"].iloc[0] + 0.25, abs=1e-9)
         assert "test_t2_offset_p2" in [d["name"] for d in describe_effects()]
     finally:
-        from engine_model import effects as eff_mod
-        eff_mod._REGISTRY.pop("test_t2_offset_p2", None)
+        unregister("test_t2_offset_p2")
+    assert "test_t2_offset_p2" not in registry()
 
 
 def test_spec_round_trip_and_errors():
@@ -151,6 +153,8 @@ def test_spec_round_trip_and_errors():
                      ("customer_bleed:f0", "not param=value")]:
         with pytest.raises(EffectSpecError, match=msg):
             parse_effect_spec(bad)
+    with pytest.raises(InputError, match="unknown effect"):  # a user's input error
+        parse_effect_spec("nope")
 
 
 def test_dynamics_first_order_lag_is_exact():

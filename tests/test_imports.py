@@ -130,3 +130,26 @@ def test_no_private_engine_model_names_outside_engine_model():
     found = [use for package in OUTSIDE if (REPO / package).is_dir()
              for use in private_uses(package, engine_private)]
     assert found == []
+
+
+def relative_imports(module: str) -> set[str]:
+    """The engine_model modules ``engine_model/<module>.py`` imports (relative or absolute)."""
+    tree = ast.parse((REPO / "engine_model" / f"{module}.py").read_text())
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level == 1 and node.module:
+                out.add(node.module.split(".")[0])
+            elif node.level == 1:
+                out |= {a.name for a in node.names}
+            elif node.module and node.module.startswith("engine_model."):
+                out.add(node.module.split(".")[1])
+    return out
+
+
+def test_effect_modules_import_one_way():
+    assert relative_imports("effect_base") == {"validation"}
+    assert "effects" not in relative_imports("effect_library")
+    assert {"effect_base", "effect_library"} <= relative_imports("effects")
+    loaded = modules_after_import("from engine_model.effects import registry, EffectSet")
+    assert loaded == {"casadi": False, "torch": False, "engine_model.model": False}
