@@ -1,4 +1,5 @@
-"""``hyprog data ...``: look at a fleet dataset (hyprog parquet or N-CMAPSS h5)."""
+"""``hyprog data ...``: look at a fleet dataset (hyprog parquet or N-CMAPSS h5), import the
+C-MAPSS (2008) text files."""
 
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ from typing import Annotated
 
 import typer
 
-from cli.common import console, echo_json, user_errors
+from cli.common import CliError, console, echo_json, user_errors
 
-app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5).",
+app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5); import C-MAPSS.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
 
 
@@ -48,6 +49,36 @@ def info(
     eff = rep.get("effects") or []
     out.print("effects: " + (", ".join(_effect_label(e) for e in eff) if eff else "none"))
     out.print("columns: " + "; ".join(f"{g} ({len(c)})" for g, c in rep["columns"].items() if c))
+
+
+@app.command("import-cmapss")
+def import_cmapss(
+    train: Annotated[Path, typer.Argument(help="C-MAPSS train_FD00x.txt.")],
+    out: Annotated[Path, typer.Option("--out", help="Parquet dataset directory to write.")],
+    test: Annotated[Path | None, typer.Option("--test", help="test_FD00x.txt (with --rul).")
+                    ] = None,
+    rul: Annotated[Path | None, typer.Option("--rul", help="RUL_FD00x.txt (with --test).")
+                   ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+):
+    """Read a C-MAPSS (2008) subset into a hyprog parquet dataset (N-CMAPSS names, alt in ft,
+    RUL per cycle; test unit u becomes unit 1000 + u). Written atomically."""
+    from engine_model import datasets
+
+    with user_errors():
+        if (test is None) != (rul is None):
+            raise CliError("give --test and --rul together (the RUL file belongs to the test"
+                           " file)")
+        df, meta = datasets.read_cmapss(train, test, rul)
+        path = datasets.write_parquet(df, out, meta)
+    rep = {"out": str(path), "rows": len(df), "dev_units": meta["dev_units"],
+           "test_units": meta["test_units"], "test_unit_offset": meta["test_unit_offset"]}
+    if as_json:
+        echo_json(rep)
+        return
+    console().print(f"wrote {path}: {len(df):,} rows, {len(meta['dev_units'])} train units,"
+                    f" {len(meta['test_units'])} test units (test unit u is unit"
+                    f" {meta['test_unit_offset']} + u)")
 
 
 def _effect_label(e) -> str:

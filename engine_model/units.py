@@ -6,6 +6,7 @@ rpm, lbf. Every conversion in hyprog goes through the constants of this module.
 """
 
 FT_TO_M = 0.3048
+FT_PER_KFT = 1000.0  # C-MAPSS (2008) gives altitude in thousands of feet
 PSIA_TO_PA = 6894.757293168
 LBM_TO_KG = 0.45359237
 LBF_TO_N = 4.4482216152605

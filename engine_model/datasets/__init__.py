@@ -1,4 +1,4 @@
-"""Fleet data sets on disk: hyprog parquet and the N-CMAPSS h5 layout.
+"""Fleet data sets on disk: hyprog parquet, the N-CMAPSS h5 layout, C-MAPSS text (read).
 
 One module per job; this package re-exports the public names of all of them, so
 ``from engine_model.datasets import read_dataset, write_parquet`` is the import to use.
@@ -16,12 +16,22 @@ module          what is inside
 ``dispatch``    :func:`read_dataset` / :func:`write_dataset` / :func:`read_metadata` /
                 :func:`read_columns` for either format
 ``summary``     :func:`summarize` (``hyprog data info``)
+``cmapss``      the C-MAPSS (2008) text files (train / test / RUL) read into the same table
 ==============  ===============================================================================
 
 Each module's docstring describes its format. Reading data never imports CasADi or torch.
 """
 
 from .atomic import remove_stale_temporaries
+from .cmapss import (
+    CMAPSS_COLUMNS,
+    CMAPSS_SENSORS,
+    CMAPSS_SETTINGS,
+    CMAPSS_SOURCE,
+    read_cmapss,
+    read_cmapss_text,
+    read_rul_file,
+)
 from .dispatch import read_columns, read_dataset, read_metadata, write_dataset
 from .metadata import META_KEY, SAMPLE_RATE_KEY, hyprog_version
 from .ncmapss_h5 import (
@@ -67,4 +77,6 @@ __all__ = [
     "read_ncmapss_h5", "read_dataset", "write_dataset", "summarize", "canonical_columns",
     "column_groups", "written_units", "write_unit_part", "parquet_unit_writer",
     "remove_stale_temporaries", "hyprog_version",
+    "CMAPSS_COLUMNS", "CMAPSS_SENSORS", "CMAPSS_SETTINGS", "CMAPSS_SOURCE", "read_cmapss",
+    "read_cmapss_text", "read_rul_file",
 ]

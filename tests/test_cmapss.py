@@ -1,0 +1,214 @@
+"""The C-MAPSS (2008) text files read into the hyprog table (engine_model.datasets.cmapss) and
+``hyprog data import-cmapss``.
+
+The files are written by the tests in the published layout: 26 space-separated numbers a line,
+two trailing spaces (as in the NASA files), settings as in FD002 (altitude in kft).
+"""
+
+import inspect
+import json
+
+import numpy as np
+import pytest
+from pandas.testing import assert_frame_equal
+from typer.testing import CliRunner
+
+from cli.main import app
+from engine_model.datasets import (
+    CMAPSS_SENSORS,
+    read_cmapss,
+    read_cmapss_text,
+    read_dataset,
+    read_rul_file,
+)
+from engine_model.datasets.cmapss import offset_for_test_units
+from engine_model.validation import InputError
+
+# an FD002 line: settings (alt kft, Mach, TRA) and the 21 sensors, T2 first, W32 last
+SETTINGS = (34.9983, 0.84, 100.0)
+SENSORS = (449.44, 555.32, 1358.61, 1137.23, 5.48, 7.97, 194.64, 2222.65, 8341.91, 1.02,
+           42.02, 183.06, 2387.72, 8048.56, 9.3461, 0.02, 334, 2223, 100.00, 14.73, 8.8071)
+TRAIN_CYCLES = {1: 4, 2: 3}
+TEST_CYCLES = {1: 2, 2: 3}
+TEST_RUL = (112, 98)
+
+
+def line(unit, cycle, alt_kft=SETTINGS[0], sensors=SENSORS):
+    """One line of a C-MAPSS file: sensors drift with the cycle so every row differs."""
+    values = [alt_kft, *SETTINGS[1:], *(s + 0.01 * cycle for s in sensors)]
+    return f"{unit} {cycle} " + " ".join(f"{v:.4f}" for v in values) + "  "
+
+
+def write_lines(path, lines):
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture()
+def files(tmp_path):
+    train = write_lines(tmp_path / "train_FD002.txt",
+                        [line(u, c) for u, n in TRAIN_CYCLES.items() for c in range(1, n + 1)])
+    test = write_lines(tmp_path / "test_FD002.txt",
+                       [line(u, c) for u, n in TEST_CYCLES.items() for c in range(1, n + 1)])
+    rul = write_lines(tmp_path / "RUL_FD002.txt", [f"{r} " for r in TEST_RUL])
+    return train, test, rul
+
+
+@pytest.fixture(scope="module")
+def runner():
+    if "mix_stderr" in inspect.signature(CliRunner.__init__).parameters:
+        return CliRunner(mix_stderr=False)
+    return CliRunner()
+
+
+# ---------------------------------------------------------------------------------------------
+# library
+# ---------------------------------------------------------------------------------------------
+
+def test_columns_map_in_the_documented_order_and_altitude_is_in_feet(files):
+    df = read_cmapss_text(files[0])
+    assert list(df.columns) == ["unit", "cycle", "alt", "Mach", "TRA", *CMAPSS_SENSORS]
+    assert CMAPSS_SENSORS[:4] == ("T2", "T24", "T30", "T50")
+    assert CMAPSS_SENSORS[-2:] == ("W31", "W32")
+    assert len(df) == sum(TRAIN_CYCLES.values())
+    first = df.iloc[0]
+    assert first["alt"] == pytest.approx(34998.3)  # 34.9983 kft
+    assert (first["Mach"], first["TRA"]) == (0.84, 100.0)
+    for name, value in zip(CMAPSS_SENSORS, SENSORS, strict=True):
+        assert first[name] == pytest.approx(value + 0.01, abs=1e-9), name
+    assert df["unit"].dtype == np.int64 and df["cycle"].dtype == np.int64
+
+
+def test_train_rul_counts_down_to_zero_at_the_last_cycle(files):
+    df, meta = read_cmapss(files[0])
+    u1 = df[df["unit"] == 1]
+    assert u1["cycle"].tolist() == [1, 2, 3, 4]
+    assert u1["RUL"].tolist() == [3, 2, 1, 0]
+    assert df[df["unit"] == 2]["RUL"].tolist() == [2, 1, 0]
+    assert df["RUL"].dtype == np.int64
+    assert (df["t"] == 0.0).all() and df["t"].dtype == np.float64
+    assert meta == {"source_format": "cmapss-text", "dev_units": [1, 2], "test_units": [],
+                    "test_unit_offset": 1000, "source_files": {"train": "train_FD002.txt"},
+                    "cmapss_subset": "FD002"}
+    assert "sample_rate_hz" not in meta  # one snapshot per cycle: no sample rate
+    assert list(df.columns[:8]) == ["unit", "cycle", "t", "RUL", "alt", "Mach", "TRA", "T2"]
+
+
+def test_test_units_are_renumbered_and_their_rul_comes_from_the_rul_file(files):
+    df, meta = read_cmapss(*files)
+    assert meta["dev_units"] == [1, 2] and meta["test_units"] == [1001, 1002]
+    assert meta["source_files"] == {"train": "train_FD002.txt", "test": "test_FD002.txt",
+                                    "rul": "RUL_FD002.txt"}
+    assert sorted(df["unit"].unique()) == [1, 2, 1001, 1002]
+    # the trajectory stops RUL_file cycles before failure: RUL = RUL_file + last - cycle
+    assert df[df["unit"] == 1001]["RUL"].tolist() == [112 + 1, 112]
+    assert df[df["unit"] == 1002]["RUL"].tolist() == [98 + 2, 98 + 1, 98]
+    assert df[df["unit"] == 1]["RUL"].tolist() == [3, 2, 1, 0]  # train units unchanged
+    assert df["unit"].is_monotonic_increasing
+
+
+def test_test_unit_offset_clears_every_train_unit():
+    assert offset_for_test_units([1, 260]) == 1000
+    assert offset_for_test_units([999]) == 1000
+    assert offset_for_test_units([1000]) == 2000
+    assert offset_for_test_units([2500]) == 3000
+
+
+def test_rul_file_reads_one_integer_a_line(tmp_path):
+    path = write_lines(tmp_path / "RUL.txt", ["112 ", "98", "", "69  "])
+    assert read_rul_file(path).tolist() == [112, 98, 69]
+    with pytest.raises(InputError, match=r"line 2, column RUL: 9.5 is not an integer"):
+        read_rul_file(write_lines(tmp_path / "bad.txt", ["3", "9.5"]))
+
+
+@pytest.mark.parametrize("bad_line, fragments", [
+    ("1 5 " + "1.0 " * 23, ("line 8", "25 columns", "expected 26")),
+    (line(1, 5).replace("1358.6600", "hot"), ("line 8", "column T30", "'hot'")),
+    (line(1, 5).replace("2222.7000", "NaN"), ("line 8", "column Nf", "NaN")),
+    (line(1, 5).replace("1 5 ", "1 5.5 ", 1), ("line 8", "column cycle", "5.5")),
+])
+def test_bad_lines_are_named_by_file_line_and_column(files, bad_line, fragments):
+    train = files[0]  # 7 good lines, the bad one is line 8
+    with train.open("a") as fh:
+        fh.write(bad_line + "\n")
+    with pytest.raises(InputError) as info:
+        read_cmapss(train)
+    message = str(info.value)
+    assert message.startswith(str(train))
+    for f in fragments:
+        assert f in message, (f, message)
+
+
+def test_rul_file_length_must_match_the_test_units(files, tmp_path):
+    train, test, _ = files
+    short = write_lines(tmp_path / "RUL_short.txt", ["112 "])
+    with pytest.raises(InputError, match=r"1 RUL values, but test_FD002.txt has 2 test units"):
+        read_cmapss(train, test, short)
+    with pytest.raises(InputError, match="needs its RUL file"):
+        read_cmapss(train, test)
+
+
+def test_repeated_cycle_is_an_error(files):
+    with files[0].open("a") as fh:
+        fh.write(line(2, 3) + "\n")
+    with pytest.raises(InputError, match="unit 2, cycle 3 appears twice"):
+        read_cmapss(files[0])
+
+
+# ---------------------------------------------------------------------------------------------
+# hyprog data import-cmapss
+# ---------------------------------------------------------------------------------------------
+
+def test_import_writes_a_parquet_dataset_that_reads_back(runner, files, tmp_path):
+    out = tmp_path / "fd002"
+    train, test, rul = files
+    r = runner.invoke(app, ["data", "import-cmapss", str(train), "--test", str(test), "--rul",
+                            str(rul), "--out", str(out), "--json"])
+    assert r.exit_code == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert rep["rows"] == 12 and rep["test_units"] == [1001, 1002]
+    expected, meta = read_cmapss(train, test, rul)
+    back, back_meta = read_dataset(out)
+    assert_frame_equal(back, expected, check_exact=True)
+    assert {k: back_meta[k] for k in meta} == meta
+    test_only, _ = read_dataset(out, split="test")
+    assert sorted(test_only["unit"].unique()) == [1001, 1002]
+    info = json.loads(runner.invoke(app, ["data", "info", str(out), "--json"]).stdout)
+    assert info["source_format"] == "cmapss-text"
+    assert [u["eol"] for u in info["units"]] == [4, 3, 2, 3]
+
+
+def assert_user_error(result, *fragments):
+    assert result.exit_code == 1, (result.exit_code, result.stdout, result.stderr)
+    err = result.stderr
+    assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
+    for f in fragments:
+        assert f in err, (f, err)
+
+
+def test_import_errors_are_one_line_and_leave_nothing(runner, files, tmp_path):
+    train, test, rul = files
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["data", "import-cmapss", str(train), "--test", str(test),
+                            "--out", str(out)])
+    assert_user_error(r, "--test", "--rul")
+    short = write_lines(tmp_path / "RUL_short.txt", ["112"])
+    r = runner.invoke(app, ["data", "import-cmapss", str(train), "--test", str(test),
+                            "--rul", str(short), "--out", str(out)])
+    assert_user_error(r, str(short), "1 RUL values", "2 test units")
+    r = runner.invoke(app, ["data", "import-cmapss", str(tmp_path / "nope.txt"), "--out",
+                            str(out)])
+    assert_user_error(r, "nope.txt", "no such file")
+    with train.open("a") as fh:
+        fh.write("1 5 " + "1.0 " * 25 + "\n")
+    r = runner.invoke(app, ["data", "import-cmapss", str(train), "--test", str(test), "--rul",
+                            str(rul), "--out", str(out)])
+    assert_user_error(r, str(train), "line 8", "27 columns")
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == [
+        "RUL_FD002.txt", "RUL_short.txt", "test_FD002.txt", "train_FD002.txt"]
+
+
+def test_an_empty_file_is_an_error(tmp_path):
+    empty = write_lines(tmp_path / "train_FD001.txt", ["   "])
+    with pytest.raises(InputError, match="no data lines"):
+        read_cmapss(empty)
