@@ -1,0 +1,201 @@
+"""Saving and loading a :class:`ensemble.RulModel`: safetensors + JSON, hashed, never a pickle.
+
+Layout of a model directory::
+
+    MODEL_DIR/model.json               manifest (below)
+    MODEL_DIR/member-<seed>.safetensors  the weights of one network (tensors only)
+
+``model.json`` holds ``format`` (``"hyprog-prognostics"``), ``format_version``,
+``hyprog_version``, the training ``config`` (model, inputs, window, stride, ``max_rul``,
+seeds, units ...), the input ``columns``, the ``scaler`` (minimum / maximum per column), the
+``conformal`` interval (or null) and per member its file, ``sha256``, seed, best epoch,
+parameter count and training history; then ``sha256``: the SHA-256 of the canonical JSON
+(sorted keys, no spaces) of everything else in the manifest.
+
+Loading refuses, with an :class:`InputError` naming the file:
+
+- a directory without ``model.json``, a manifest that is not JSON or has another ``format``
+  (a foreign file);
+- a manifest whose own ``sha256`` does not match (edited by hand, truncated) or a weights file
+  whose SHA-256 is not the one recorded (tampered, swapped between models);
+- another ``format_version`` (the layout changed; retrain or use the hyprog that wrote it);
+- weights whose names or shapes do not fit the recorded network.
+
+A model written by another hyprog *version* with the same ``format_version`` loads, with a
+``UserWarning`` naming both versions: the format is versioned on its own, so a version bump
+that does not touch it does not strand trained models, but the user hears about it.
+
+Safetensors (Hugging Face) stores raw tensors and a JSON header; reading it executes no code,
+unlike ``torch.load`` of a pickle. Writing is atomic: the directory is built as a hidden
+temporary sibling and renamed into place; an existing target is replaced only if it is a
+hyprog model directory (or empty), and only after the new one is complete.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import uuid
+import warnings
+from pathlib import Path
+
+from safetensors import SafetensorError
+from safetensors.torch import load as st_load
+from safetensors.torch import save as st_save
+
+from engine_model.validation import InputError
+
+from .conformal import SplitConformal
+from .scaling import MinMaxScaler
+from .training import Member, TrainConfig
+
+FORMAT = "hyprog-prognostics"
+FORMAT_VERSION = 1
+MANIFEST = "model.json"
+
+
+def hyprog_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("hyprog")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _canonical(obj) -> bytes:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+
+
+def _manifest(model) -> tuple[dict, dict[str, bytes]]:
+    files, members = {}, []
+    for m in model.members:
+        name = f"member-{m.seed}.safetensors"
+        if name in files:
+            raise InputError(f"two members with seed {m.seed}")
+        blob = st_save({k: v.contiguous() for k, v in m.state.items()},
+                       metadata={"format": FORMAT})
+        files[name] = blob
+        members.append({"file": name, "sha256": sha256_bytes(blob), "seed": m.seed,
+                        "best_epoch": m.best_epoch, "parameters": m.parameters,
+                        "history": m.history})
+    body = {"format": FORMAT, "format_version": FORMAT_VERSION,
+            "hyprog_version": model.info.get("hyprog_version", hyprog_version()),
+            "config": model.config.to_dict(), "columns": list(model.columns),
+            "scaler": model.scaler.to_dict(),
+            "conformal": None if model.conformal is None else model.conformal.to_dict(),
+            "members": members}
+    body["sha256"] = sha256_bytes(_canonical(body))
+    return body, files
+
+
+def _replaceable(path: Path) -> bool:
+    return (path / MANIFEST).is_file() or (path.is_dir() and not any(path.iterdir()))
+
+
+def save_model(model, path: str | os.PathLike) -> Path:
+    """Write ``model`` to the directory ``path`` atomically (module docstring)."""
+    target = Path(path)
+    if target.exists() and (not target.is_dir() or not _replaceable(target)):
+        raise InputError(f"{target}: exists and is not a hyprog model directory; not replacing")
+    body, files = _manifest(model)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex}"
+    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex}"
+    try:
+        tmp.mkdir()
+        for name, blob in files.items():
+            (tmp / name).write_bytes(blob)
+        (tmp / MANIFEST).write_text(json.dumps(body, indent=1, allow_nan=False) + "\n")
+        if target.exists():
+            os.replace(target, old)
+        os.replace(tmp, target)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+        if old.exists():
+            shutil.rmtree(old, ignore_errors=True)
+    return target
+
+
+def _read_manifest(directory: Path) -> dict:
+    file = directory / MANIFEST
+    if not file.is_file():
+        raise InputError(f"{directory}: not a hyprog model directory (no {MANIFEST})")
+    try:
+        body = json.loads(file.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        raise InputError(f"{file}: not a hyprog model manifest (not JSON)") from None
+    if not isinstance(body, dict) or body.get("format") != FORMAT:
+        raise InputError(f"{file}: not a hyprog model manifest (format is not {FORMAT!r})")
+    recorded = body.pop("sha256", None)
+    try:
+        actual = sha256_bytes(_canonical(body))
+    except (TypeError, ValueError):
+        actual = None
+    if recorded != actual:
+        raise InputError(f"{file}: SHA-256 mismatch: the manifest was modified or is "
+                         "corrupt; refusing to load")
+    if body.get("format_version") != FORMAT_VERSION:
+        raise InputError(f"{file}: model format version {body.get('format_version')} (written "
+                         f"by hyprog {body.get('hyprog_version')}); this hyprog reads version "
+                         f"{FORMAT_VERSION}: retrain the model")
+    return body
+
+
+def load_model(path: str | os.PathLike):
+    """Read a model directory (or its ``model.json``) -> :class:`ensemble.RulModel`."""
+    from .ensemble import RulModel
+
+    p = Path(path)
+    if p.is_file() and p.name == MANIFEST:
+        p = p.parent
+    if not p.exists():
+        raise InputError(f"{p}: no such model directory")
+    if not p.is_dir():
+        raise InputError(f"{p}: not a hyprog model directory (a file)")
+    body = _read_manifest(p)
+    version = body.get("hyprog_version")
+    if version != hyprog_version():
+        warnings.warn(f"{p}: model written by hyprog {version}, this is hyprog "
+                      f"{hyprog_version()} (same format version {FORMAT_VERSION})",
+                      UserWarning, stacklevel=2)
+    try:
+        config = TrainConfig.from_dict(body["config"]).resolved()
+        columns = tuple(str(c) for c in body["columns"])
+        scaler = MinMaxScaler.from_dict(body["scaler"])
+        conformal = None if body["conformal"] is None else \
+            SplitConformal.from_dict(body["conformal"])
+        entries = list(body["members"])
+    except (KeyError, TypeError) as e:
+        raise InputError(f"{p / MANIFEST}: malformed manifest ({e})") from None
+    if scaler.columns != columns:
+        raise InputError(f"{p / MANIFEST}: the scaler's columns differ from the inputs")
+    if not entries:
+        raise InputError(f"{p / MANIFEST}: no trained members")
+    members = []
+    for e in entries:
+        name = str(e.get("file", ""))
+        file = p / name
+        if Path(name).name != name or not file.is_file():
+            raise InputError(f"{file}: weights file missing")
+        blob = file.read_bytes()
+        if sha256_bytes(blob) != e.get("sha256"):
+            raise InputError(f"{file}: SHA-256 mismatch: the weights were modified or do not "
+                             "belong to this model; refusing to load")
+        try:
+            state = st_load(blob)
+        except (SafetensorError, ValueError) as exc:
+            raise InputError(f"{file}: unreadable safetensors file ({exc})") from None
+        members.append(Member(int(e["seed"]), state, list(e.get("history", [])),
+                              int(e.get("best_epoch", 0)), int(e.get("parameters", 0))))
+    model = RulModel(config, columns, scaler, members, conformal,
+                     info={"hyprog_version": version, "path": str(p)})
+    model.networks()  # weights must fit the recorded network
+    return model

@@ -1,0 +1,111 @@
+"""A trained RUL model: one network per seed (an ensemble), its inputs, scaler and interval.
+
+Prediction of a sample ``x`` by an ensemble of ``M`` members ``ŷ_1 .. ŷ_M`` (networks trained
+with different seeds on the same data; Lakshminarayanan, Pritzel & Blundell, "Simple and
+scalable predictive uncertainty estimation using deep ensembles", NeurIPS 2017)::
+
+    ŷ(x) = (1/M) Σ_m ŷ_m(x)                      (RUL_pred)
+    s(x) = sqrt( Σ_m (ŷ_m(x) - ŷ(x))² / (M - 1) )  (RUL_std, M >= 2)
+
+The spread ``s`` measures disagreement between seeds (model uncertainty only); it is not a
+calibrated interval. The calibrated interval is the split-conformal one (:mod:`.conformal`)
+around ``ŷ``, present when the model was trained with conformal units:
+``RUL_lower = max(ŷ - q̂, 0)``, ``RUL_upper = ŷ + q̂``.
+
+Prediction on a table uses the model's recorded columns (a missing one is an error naming
+it), its scaler, and windows over each unit as a whole (:mod:`.windows`): a sample gets a
+prediction when a full window ends at it; a unit shorter than the window is left-padded with
+its first row and gets one prediction at its last sample.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+import torch
+from torch import nn
+
+from engine_model.validation import InputError
+
+from .conformal import SplitConformal
+from .features import TARGET, check_table, sort_table
+from .metrics import evaluate_predictions
+from .models import build_model
+from .scaling import MinMaxScaler
+from .splits import segments
+from .training import Member, TrainConfig, deterministic, predict_windows, resolve_device
+from .windows import make_windows
+
+
+@dataclass
+class RulModel:
+    """Members (one per seed), input columns, scaler, optional conformal interval."""
+
+    config: TrainConfig
+    columns: tuple[str, ...]
+    scaler: MinMaxScaler
+    members: list[Member]
+    conformal: SplitConformal | None = None
+    info: dict = field(default_factory=dict)  # e.g. the hyprog version it was trained with
+
+    @property
+    def window(self) -> int:
+        return int(self.config.window)
+
+    def networks(self, device: torch.device | str = "cpu") -> list[nn.Module]:
+        nets = []
+        for m in self.members:
+            net = build_model(self.config.model, len(self.columns), self.window)
+            try:
+                net.load_state_dict(m.state, strict=True)
+            except RuntimeError as e:
+                first = str(e).strip().splitlines()[0]
+                raise InputError(f"model weights do not fit the network: {first}") from None
+            nets.append(net.to(device))
+        return nets
+
+    def predict(self, df: pd.DataFrame, units: Sequence[int] | None = None,
+                device: str = "cpu", source: str = "table") -> pd.DataFrame:
+        """Per-sample predictions (module docstring): ``unit``, ``cycle``, ``t`` and ``RUL``
+        when the table has them, ``RUL_pred``, ``RUL_std`` (2+ members), ``RUL_lower`` and
+        ``RUL_upper`` (with an interval)."""
+        if units is not None:
+            missing = sorted(set(int(u) for u in units) - set(df["unit"].unique().tolist()))
+            if missing:
+                raise InputError(f"{source}: unit(s) {', '.join(map(str, missing))} not in the "
+                                 "table")
+            df = df[df["unit"].isin([int(u) for u in units])]
+        if len(df) == 0:
+            raise InputError(f"{source}: no rows to predict")
+        missing = [c for c in self.columns if c not in df.columns]
+        if missing:
+            raise InputError(f"{source}: missing input column(s) {', '.join(missing)} that the "
+                             "model was trained on")
+        frame = sort_table(df)
+        check_table(frame, self.columns, source, target=False)
+        x = self.scaler.transform(frame[list(self.columns)].to_numpy(np.float64))
+        unit = frame["unit"].to_numpy()
+        a, b = segments(unit, np.zeros(len(unit), np.int8))
+        win = make_windows(x, a, b, self.window, 1)
+        dev = resolve_device(device)
+        with deterministic(dev):
+            preds = np.stack([predict_windows(net, win, dev) for net in self.networks(dev)])
+        keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
+        out = frame[keep].iloc[win.rows].reset_index(drop=True)
+        out["RUL_pred"] = preds.mean(axis=0)
+        if len(preds) > 1:
+            out["RUL_std"] = preds.std(axis=0, ddof=1)
+        if self.conformal is not None:
+            out["RUL_lower"], out["RUL_upper"] = self.conformal.interval(out["RUL_pred"])
+        return out
+
+    def evaluate(self, df: pd.DataFrame, units: Sequence[int], device: str = "cpu",
+                 source: str = "table") -> tuple[dict, pd.DataFrame]:
+        """Metrics of :func:`metrics.evaluate_predictions` on ``units`` and the predictions."""
+        if TARGET not in df.columns:
+            raise InputError(f"{source}: no {TARGET} column to evaluate against")
+        pred = self.predict(df, units, device, source)
+        return evaluate_predictions(pred), pred

@@ -1,0 +1,146 @@
+"""Input sets of the prognostics networks: names -> the columns of a feature table.
+
+The feature table is the one ``hyprog calibrate`` writes (``CalibrationResult.to_features``):
+the measured-data columns, ``<c>_hat`` for every x_s and x_v channel, ``<theta>_hat`` and
+``<theta>_hat_std`` for every estimated health parameter. Any table with these names works
+(a C-MAPSS table read into hyprog names, a user's file).
+
+Groups (each resolves to the listed columns *that the table has*, in this order)
+-------------------------------------------------------------------------------
+``w``          ``alt Mach TRA T2``                         scenario descriptors
+``xs``         ``channels.XS_NAMES``                        measured, 16 in the paper
+``xs_hat``     ``<c>_hat`` for c in x_s                     model prediction of x_s
+``xv``         ``channels.XV_NAMES``                        true virtual sensors (simulation)
+``xv_hat``     ``<c>_hat`` for c in x_v                     virtual sensors of the model
+``theta_hat``  ``<q>_hat`` for q in ``THETA_NAMES``        calibrated health parameters
+``theta``      true ``q`` for every ``<q>_hat`` present     perfect calibration (if no ``_hat``
+                                                            in the table: every true theta)
+
+Named sets (the paper's, Sec. 4.2 and ablation III)
+----------------------------------------------------
+==============  ===========================================  ===============================
+name            groups                                       paper
+==============  ===========================================  ===============================
+data-driven     w + xs                                       [w, x_s], n = 20
+denoised        w + xs + xs_hat                              [w, x_s, x̂_s]
+virtual         w + xs + xs_hat + xv_hat                     [w, x_s, x̂_s, x̂_v]
+hybrid          w + xs + xs_hat + xv_hat + theta_hat         [w, x_s, x̂_s, x̂_v, θ̂], n = 50
+truth-theta     w + xs + xs_hat + xv_hat + theta             θ from the data instead of θ̂
+==============  ===========================================  ===============================
+
+A specification (``--inputs``) is terms joined by ``+``: a set name, a group name, or a
+comma-separated list of columns, e.g. ``hybrid``, ``w+xs+xs_hat``, ``alt,Mach,TRA,T2,T24``,
+``hybrid+Ps30,phi``. Set and group names resolve to what the table has, but a group that
+resolves to nothing is an error (``hybrid`` on a raw table without ``_hat`` columns would
+silently be ``data-driven``); an explicit column that the table lacks is an error naming it.
+Columns are deduplicated in first-seen order; the resolved list is what a model records.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from engine_model.channels import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from engine_model.validation import InputError
+
+KEYS = ("unit", "cycle")
+TARGET = "RUL"
+
+GROUPS = ("w", "xs", "xs_hat", "xv", "xv_hat", "theta_hat", "theta")
+
+INPUT_SETS: dict[str, tuple[str, ...]] = {
+    "data-driven": ("w", "xs"),
+    "denoised": ("w", "xs", "xs_hat"),
+    "virtual": ("w", "xs", "xs_hat", "xv_hat"),
+    "hybrid": ("w", "xs", "xs_hat", "xv_hat", "theta_hat"),
+    "truth-theta": ("w", "xs", "xs_hat", "xv_hat", "theta"),
+}
+
+
+def group_columns(group: str, columns: Sequence[str]) -> list[str]:
+    """The columns of ``group`` (module docstring) that ``columns`` has, in canonical order."""
+    have = set(columns)
+    if group == "w":
+        cand = list(W_NAMES)
+    elif group == "xs":
+        cand = list(XS_NAMES)
+    elif group == "xs_hat":
+        cand = [c + "_hat" for c in XS_NAMES]
+    elif group == "xv":
+        cand = list(XV_NAMES)
+    elif group == "xv_hat":
+        cand = [c + "_hat" for c in XV_NAMES]
+    elif group == "theta_hat":
+        cand = [q + "_hat" for q in THETA_NAMES]
+    elif group == "theta":
+        estimated = [q for q in THETA_NAMES if q + "_hat" in have]
+        cand = estimated or list(THETA_NAMES)
+    else:
+        raise InputError(f"unknown input group {group!r}; one of {', '.join(GROUPS)}")
+    return [c for c in cand if c in have]
+
+
+def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table") -> list[str]:
+    """Resolve an input specification (module docstring) against a table's ``columns``."""
+    spec = spec.strip()
+    if not spec:
+        raise InputError("inputs: empty specification")
+    out: list[str] = []
+    for term in (t.strip() for t in spec.split("+")):
+        if not term:
+            raise InputError(f"inputs {spec!r}: empty term between '+'")
+        if term in INPUT_SETS or term in GROUPS:
+            groups = INPUT_SETS.get(term, (term,))
+            for g in groups:
+                cols = group_columns(g, columns)
+                if not cols:
+                    hint = " (run hyprog calibrate first)" if g.endswith("_hat") else ""
+                    raise InputError(f"{source}: inputs {term!r} need the {g} columns, and the "
+                                     f"table has none{hint}")
+                out += cols
+            continue
+        names = [c.strip() for c in term.split(",") if c.strip()]
+        missing = [c for c in names if c not in set(columns)]
+        if missing:
+            known = ", ".join([*INPUT_SETS, *GROUPS])
+            raise InputError(f"{source}: no input column(s) {', '.join(missing)} (an input "
+                             f"term is a set or group name - {known} - or table columns)")
+        out += names
+    bad = [c for c in out if c in (*KEYS, TARGET)]
+    if bad:
+        raise InputError(f"inputs {spec!r}: {', '.join(bad)} cannot be an input")
+    return list(dict.fromkeys(out))
+
+
+def check_table(df: pd.DataFrame, columns: Sequence[str], source: str = "table",
+                target: bool = True) -> None:
+    """``df`` has ``unit``, ``cycle``, the input ``columns`` (and ``RUL`` when ``target``), all
+    finite; the first offending unit and column are named."""
+    need = [*KEYS, *columns, *([TARGET] if target else [])]
+    missing = [c for c in need if c not in df.columns]
+    if missing:
+        raise InputError(f"{source}: missing column(s) {', '.join(missing)}")
+    for c in [*columns, *([TARGET] if target else [])]:
+        v = df[c].to_numpy()
+        if not np.issubdtype(v.dtype, np.number):
+            raise InputError(f"{source}: column {c} is not numeric ({v.dtype})")
+        bad = ~np.isfinite(v.astype(float, copy=False))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{source}: unit {int(df['unit'].iloc[i])}, cycle "
+                             f"{int(df['cycle'].iloc[i])}, column {c}: value is {v[i]} "
+                             "(NaN or infinite)")
+
+
+def sort_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows ordered by unit, cycle (and ``t`` when present), index reset; a table already in
+    that order is returned as is (no copy)."""
+    keys = [k for k in ("unit", "cycle", "t") if k in df.columns]
+    idx = pd.MultiIndex.from_frame(df[keys]) if len(keys) > 1 else pd.Index(df[keys[0]])
+    if idx.is_monotonic_increasing and isinstance(df.index, pd.RangeIndex) \
+            and df.index.start == 0 and df.index.step == 1:
+        return df
+    return df.sort_values(keys, kind="stable").reset_index(drop=True)

@@ -1,0 +1,146 @@
+"""Prognostics metrics: RMSE, NASA score, per-cycle mean, prediction horizon, interval coverage.
+
+Conventions (write them down: the literature flips signs)
+---------------------------------------------------------
+Error of a prediction ``ŷ`` of the true RUL ``y``: ``d = ŷ - y`` (PHM08 / Saxena et al., "Damage
+propagation modeling for aircraft engine run-to-failure simulation", PHM 2008, eq. 1). ``d > 0``
+is a **late** prediction (RUL over-estimated: the engine fails before we expect), penalised
+harder; ``d < 0`` is early. The paper (Sec. 4.5) writes the same score with ``Δ = y - ŷ``.
+
+- RMSE ``= sqrt(mean(d²))``.
+- NASA score ``s = Σ_j (exp(-d_j / 13) - 1)`` for ``d_j < 0`` and ``(exp(d_j / 10) - 1)`` for
+  ``d_j >= 0``; ``s = 0`` for perfect predictions, e.g. ``d = +10`` costs ``e - 1 = 1.718`` and
+  ``d = -10`` costs ``exp(10/13) - 1 = 1.158``. The paper reports ``s x 10^5`` summed over every
+  test sample.
+- Per-cycle mean (the paper's ``ŷ_u^[c]``): the mean prediction over the samples of cycle ``c``
+  of unit ``u``, with the min/max of those predictions as the band.
+- Prediction horizon (the paper's ``t_EOL - t_{|Δ| <= 5}``): on the per-cycle mean,
+  ``t_{|Δ|<=5}`` is the first cycle ``c`` such that ``|ŷ^[c'] - y^[c']| <= 5`` for every
+  observed cycle ``c' >= c``; ``t_EOL = c_last + y^[c_last]`` (the last observed cycle plus its
+  true RUL: the failure cycle, also for a truncated unit). A unit whose last observed cycle is
+  already off by more than 5 has horizon 0 (no warning time).
+- Interval coverage: the fraction of samples with ``lower <= y <= upper``; width: mean
+  ``upper - lower``.
+
+Protocols
+---------
+``samples``: every predicted sample of the test units (the paper's, Sec. 4.5).
+``last``: one prediction per unit, the per-cycle mean at its last observed cycle (the C-MAPSS
+convention of scoring each test trajectory once at its end).
+
+A prediction frame has columns ``unit``, ``cycle``, ``RUL`` (true), ``RUL_pred`` and, when the
+model has an interval, ``RUL_lower`` and ``RUL_upper``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from engine_model.validation import InputError
+
+LATE_A = 10.0
+EARLY_A = 13.0
+HORIZON_TOL = 5.0
+
+
+def rmse(y_true, y_pred) -> float:
+    d = np.asarray(y_pred, float) - np.asarray(y_true, float)
+    return float(np.sqrt(np.mean(d * d))) if d.size else float("nan")
+
+
+def nasa_score(y_true, y_pred) -> float:
+    """PHM08 score (module docstring): late (``ŷ > y``) costs ``exp(d/10) - 1``, early
+    ``exp(-d/13) - 1``."""
+    d = np.asarray(y_pred, float) - np.asarray(y_true, float)
+    return float(np.sum(np.where(d < 0, np.expm1(-d / EARLY_A), np.expm1(d / LATE_A))))
+
+
+def coverage(y_true, lower, upper) -> float:
+    y = np.asarray(y_true, float)
+    return float(np.mean((np.asarray(lower) <= y) & (y <= np.asarray(upper)))) if y.size \
+        else float("nan")
+
+
+def mean_width(lower, upper) -> float:
+    w = np.asarray(upper, float) - np.asarray(lower, float)
+    return float(np.mean(w)) if w.size else float("nan")
+
+
+def _has_interval(pred: pd.DataFrame) -> bool:
+    return "RUL_lower" in pred.columns and "RUL_upper" in pred.columns
+
+
+def check_prediction_frame(pred: pd.DataFrame) -> None:
+    missing = [c for c in ("unit", "cycle", "RUL", "RUL_pred") if c not in pred.columns]
+    if missing:
+        raise InputError(f"predictions: missing column(s) {', '.join(missing)}")
+
+
+def per_cycle(pred: pd.DataFrame) -> pd.DataFrame:
+    """One row per (unit, cycle): true ``RUL``, ``mean`` / ``min`` / ``max`` of the predictions,
+    ``n`` samples, and the mean ``lower`` / ``upper`` of the interval when there is one."""
+    check_prediction_frame(pred)
+    agg = {"RUL": ("RUL", "mean"), "mean": ("RUL_pred", "mean"), "min": ("RUL_pred", "min"),
+           "max": ("RUL_pred", "max"), "n": ("RUL_pred", "size")}
+    if _has_interval(pred):
+        agg.update(lower=("RUL_lower", "mean"), upper=("RUL_upper", "mean"))
+    return pred.groupby(["unit", "cycle"], sort=True).agg(**agg).reset_index()
+
+
+def prediction_horizon(cycles, y_true, y_mean, tol: float = HORIZON_TOL) -> float:
+    """``t_EOL - t_{|Δ| <= tol}`` of one unit from its per-cycle true and mean predicted RUL
+    (module docstring)."""
+    c = np.asarray(cycles, float)
+    if c.size == 0:
+        return float("nan")
+    order = np.argsort(c)
+    c, y, m = c[order], np.asarray(y_true, float)[order], np.asarray(y_mean, float)[order]
+    ok = np.abs(m - y) <= tol
+    if not ok[-1]:
+        return 0.0
+    bad = np.flatnonzero(~ok)
+    first = c[bad[-1] + 1] if bad.size else c[0]
+    t_eol = c[-1] + y[-1]
+    return float(t_eol - first)
+
+
+def _sample_metrics(df: pd.DataFrame) -> dict:
+    out = {"n": int(len(df)), "rmse": rmse(df["RUL"], df["RUL_pred"]),
+           "score": nasa_score(df["RUL"], df["RUL_pred"])}
+    if _has_interval(df):
+        out["coverage"] = coverage(df["RUL"], df["RUL_lower"], df["RUL_upper"])
+        out["width"] = mean_width(df["RUL_lower"], df["RUL_upper"])
+    return out
+
+
+def evaluate_predictions(pred: pd.DataFrame) -> dict:
+    """Both protocols, per unit and overall, and the prediction horizon per unit.
+
+    Returns ``{"samples": {"overall": m, "units": {u: m}}, "last": {"overall": m, "units":
+    {u: {"cycle", "RUL", "RUL_pred", "error"}}}, "horizon": {"units": {u: h}, "mean": h}}``
+    where ``m`` holds ``n``, ``rmse``, ``score`` (and ``coverage``, ``width`` with an interval).
+    """
+    check_prediction_frame(pred)
+    if len(pred) == 0:
+        raise InputError("predictions: no predicted samples to evaluate")
+    samples = {"overall": _sample_metrics(pred),
+               "units": {int(u): _sample_metrics(g) for u, g in pred.groupby("unit")}}
+    pc = per_cycle(pred)
+    last = pc.groupby("unit").tail(1)
+    last_units = {}
+    for r in last.itertuples(index=False):
+        e = {"cycle": int(r.cycle), "RUL": float(r.RUL), "RUL_pred": float(r.mean),
+             "error": float(r.mean - r.RUL)}
+        if _has_interval(pred):
+            e["lower"], e["upper"] = float(r.lower), float(r.upper)
+        last_units[int(r.unit)] = e
+    last_overall = {"n": int(len(last)), "rmse": rmse(last["RUL"], last["mean"]),
+                    "score": nasa_score(last["RUL"], last["mean"])}
+    if _has_interval(pred):
+        last_overall["coverage"] = coverage(last["RUL"], last["lower"], last["upper"])
+        last_overall["width"] = mean_width(last["lower"], last["upper"])
+    horizon = {int(u): prediction_horizon(g["cycle"], g["RUL"], g["mean"])
+               for u, g in pc.groupby("unit")}
+    return {"samples": samples, "last": {"overall": last_overall, "units": last_units},
+            "horizon": {"units": horizon, "mean": float(np.mean(list(horizon.values())))}}

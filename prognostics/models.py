@@ -1,0 +1,114 @@
+"""The paper's two prognostics networks (Sec. 4.3), built from its description.
+
+FNN (time-independent): one time step ``x in R^n`` -> RUL, layers ``[n, 200, 200, 200, 50,
+1]``, ReLU after every hidden layer, identity output. Parameters::
+
+    (n + 1) 200 + 2 (201 x 200) + 201 x 50 + 51  = 94,701 for n = 20 (the paper's "95k"),
+                                                   100,701 for n = 50
+
+1-D CNN (time-dependent): a window ``(n channels, L = 50 time steps)`` ->
+three ``Conv1d`` of kernel 10 with 10, 10 and 1 output channels, zero padding 'same' (an
+even kernel cannot pad symmetrically: 4 zeros left, 5 right, as PyTorch's ``padding='same'``
+does, written as an explicit ``ZeroPad1d`` so that torch does not warn on every model) so
+every map keeps length ``L``, ReLU after each; flatten (``L`` values); dense 50, ReLU; linear
+output. Parameters::
+
+    (10 n + 1) 10 + (100 + 1) 10 + (100 + 1) + (L + 1) 50 + 51
+        = 5,722 for n = 20, 8,722 for n = 50 (L = 50)
+
+The paper states "24k trainable parameters" for its CNN, which its own description cannot
+give (the count above has no free choice left); we build the description and report the
+count (:func:`parameter_count`).
+
+Initialisation: Xavier/Glorot uniform weights (Glorot & Bengio 2010, the paper's choice),
+zero biases, drawn from a ``torch.Generator`` seeded by the caller, so the global RNG state
+does not matter.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from engine_model.validation import InputError
+
+MODEL_KINDS = ("fnn", "cnn")
+FNN_HIDDEN = (200, 200, 200, 50)
+CNN_CHANNELS = (10, 10, 1)
+CNN_KERNEL = 10
+CNN_DENSE = 50
+DEFAULT_EPOCHS = {"fnn": 60, "cnn": 30}
+DEFAULT_WINDOW = {"fnn": 1, "cnn": 50}
+
+
+class FNN(nn.Module):
+    """``[n, 200, 200, 200, 50, 1]`` ReLU network on one time step (module docstring)."""
+
+    def __init__(self, n_inputs: int, hidden=FNN_HIDDEN):
+        super().__init__()
+        layers: list[nn.Module] = []
+        width = n_inputs
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.ReLU()]
+            width = h
+        layers.append(nn.Linear(width, 1))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, n) -> (B,)
+        return self.net(x).squeeze(-1)
+
+
+class CNN1D(nn.Module):
+    """Three 1-D convolutions over time, dense 50, linear output (module docstring)."""
+
+    def __init__(self, n_inputs: int, window: int, channels=CNN_CHANNELS,
+                 kernel: int = CNN_KERNEL, dense: int = CNN_DENSE):
+        super().__init__()
+        layers: list[nn.Module] = []
+        c_in = n_inputs
+        for c in channels:
+            left = (kernel - 1) // 2
+            layers += [nn.ZeroPad1d((left, kernel - 1 - left)), nn.Conv1d(c_in, c, kernel),
+                       nn.ReLU()]
+            c_in = c
+        layers += [nn.Flatten(), nn.Linear(c_in * window, dense), nn.ReLU(), nn.Linear(dense, 1)]
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, n, L) -> (B,)
+        return self.net(x).squeeze(-1)
+
+
+def build_model(kind: str, n_inputs: int, window: int, seed: int | None = None) -> nn.Module:
+    """A network of ``kind`` (``fnn`` or ``cnn``); Xavier-initialised from ``seed`` when given
+    (otherwise left for :meth:`load_state_dict`)."""
+    if kind not in MODEL_KINDS:
+        raise InputError(f"unknown model {kind!r}; one of {', '.join(MODEL_KINDS)}")
+    if n_inputs < 1:
+        raise InputError("a model needs at least one input column")
+    if kind == "fnn":
+        if window != 1:
+            raise InputError(f"the FNN takes one time step (the paper's); window {window} "
+                             "applies to the CNN only")
+        model: nn.Module = FNN(n_inputs)
+    else:
+        if window < 1:
+            raise InputError(f"window must be >= 1, got {window}")
+        model = CNN1D(n_inputs, window)
+    if seed is not None:
+        xavier_init(model, seed)
+    return model
+
+
+def xavier_init(model: nn.Module, seed: int) -> None:
+    """Glorot-uniform weights and zero biases of every Linear/Conv1d layer, from ``seed``."""
+    g = torch.Generator().manual_seed(int(seed))
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, (nn.Linear, nn.Conv1d)):
+                nn.init.xavier_uniform_(m.weight, generator=g)
+                nn.init.zeros_(m.bias)
+
+
+def parameter_count(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,343 @@
+"""Training of the prognostics networks (the paper, Sec. 4.4), reproducible bit for bit.
+
+Set-up (paper): mean-squared error on RUL in cycles; Adam with AMSGrad (Reddi, Kale & Kumar,
+ICLR 2018), learning rate 1e-3, mini-batches of 1024; Xavier initialisation; at most 60 (FNN)
+or 30 (CNN) epochs; early stopping with patience 5 on the validation loss, the weights of the
+best validation epoch restored at the end.
+
+Pipeline of :func:`fit`:
+
+1. development and test units (:func:`splits.development_and_test_units`), the input columns
+   (:func:`features.resolve_inputs`), roles per row (:func:`splits.assign_roles`: validation
+   flights or units, conformal units);
+2. min-max scaler fitted on the **training rows only** (:mod:`.scaling`);
+3. windows inside each unit-and-role segment (:mod:`.windows`), target ``min(RUL, max_rul)``
+   at the window's last row (``max_rul`` None: no cap, the paper's setting);
+4. per seed: initialise, train, early-stop, restore the best epoch;
+5. with conformal units: the ensemble mean on their windows calibrates a split-conformal
+   interval (:mod:`.conformal`).
+
+Reproducibility: the initial weights come from a generator seeded by the seed, the batch order
+from a second generator seeded by the seed + 1 (a CPU ``torch.Generator``, also when training
+on CUDA), there are no DataLoader workers, and :func:`deterministic` switches on torch's
+deterministic algorithms (and deterministic cuBLAS / cuDNN on CUDA). Same seed, same data,
+same device and thread count -> the same weights and losses, bit for bit.
+
+Device: ``auto`` is CUDA when available, else CPU; ``cuda`` without a GPU is an error. On CPU
+torch's own thread count is used (both cores of a 2-core machine by default).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+import torch
+from torch import nn
+
+from engine_model.validation import InputError
+
+from .features import TARGET, check_table, resolve_inputs, sort_table
+from .models import DEFAULT_EPOCHS, DEFAULT_WINDOW, MODEL_KINDS, build_model, parameter_count
+from .scaling import MinMaxScaler
+from .splits import (
+    CONFORMAL,
+    TRAIN,
+    VALIDATION,
+    assign_roles,
+    development_and_test_units,
+    segments,
+)
+from .windows import Windows, make_windows
+
+EVAL_BATCH = 8192
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run (stored with the model)."""
+
+    model: str = "cnn"
+    inputs: str = "hybrid"
+    window: int | None = None  # None: 50 for the CNN, 1 (one time step) for the FNN
+    stride: int = 1
+    max_rul: float | None = None
+    seed: int = 0
+    epochs: int | None = None  # None: 60 (FNN) / 30 (CNN)
+    batch_size: int = 1024
+    lr: float = 1e-3
+    patience: int = 5
+    val_fraction: float = 0.1
+    validation: str = "flights"
+    val_units: tuple[int, ...] | None = None
+    units: tuple[int, ...] | None = None  # development units (default: the metadata's)
+    test_units: tuple[int, ...] | None = None  # default: the metadata's
+    conformal_units: tuple[int, ...] = ()
+    alpha: float = 0.1
+    device: str = "auto"
+
+    def resolved(self) -> TrainConfig:
+        """Defaults filled in and values checked."""
+        if self.model not in MODEL_KINDS:
+            raise InputError(f"unknown model {self.model!r}; one of {', '.join(MODEL_KINDS)}")
+        c = replace(self,
+                    window=DEFAULT_WINDOW[self.model] if self.window is None else self.window,
+                    epochs=DEFAULT_EPOCHS[self.model] if self.epochs is None else self.epochs)
+        for name in ("window", "stride", "epochs", "batch_size"):
+            if int(getattr(c, name)) < 1:
+                raise InputError(f"{name} must be >= 1, got {getattr(c, name)}")
+        if c.patience < 1:
+            raise InputError(f"patience must be >= 1, got {c.patience}")
+        if c.max_rul is not None and c.max_rul <= 0:
+            raise InputError(f"max_rul must be positive, got {c.max_rul}")
+        if not c.lr > 0:
+            raise InputError(f"learning rate must be positive, got {c.lr}")
+        return c
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        for k in ("val_units", "units", "test_units", "conformal_units"):
+            if d[k] is not None:
+                d[k] = [int(u) for u in d[k]]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrainConfig:
+        known = {f for f in cls.__dataclass_fields__}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise InputError(f"training config: unknown key(s) {', '.join(unknown)}")
+        kw = dict(d)
+        for k in ("val_units", "units", "test_units", "conformal_units"):
+            if kw.get(k) is not None:
+                kw[k] = tuple(int(u) for u in kw[k])
+        return cls(**kw)
+
+
+@dataclass
+class Member:
+    """One trained network: its seed, best weights (CPU tensors) and training history."""
+
+    seed: int
+    state: dict[str, torch.Tensor]
+    history: list[dict] = field(default_factory=list)
+    best_epoch: int = 0
+    parameters: int = 0
+
+
+@dataclass
+class Prepared:
+    """Scaled development rows, their roles and windows (steps 1-3 of the module docstring)."""
+
+    config: TrainConfig
+    columns: list[str]
+    scaler: MinMaxScaler
+    frame: pd.DataFrame  # the development rows (unit, cycle, t, RUL), sorted
+    roles: np.ndarray
+    windows: dict[int, Windows]
+    dev_units: list[int]
+    test_units: list[int]
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cpu":
+        return torch.device("cpu")
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError("device cuda: no CUDA device available (use --device cpu or auto)")
+        return torch.device("cuda")
+    raise InputError(f"device must be auto, cpu or cuda, got {name!r}")
+
+
+@contextmanager
+def deterministic(device: torch.device) -> Iterator[None]:
+    """Torch's deterministic algorithms (and cuBLAS / cuDNN settings on CUDA) for the block."""
+    was = torch.are_deterministic_algorithms_enabled()
+    cudnn = (torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark)
+    if device.type == "cuda":
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+        torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = True, False
+    torch.use_deterministic_algorithms(True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(was)
+        torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = cudnn
+
+
+def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
+            source: str = "table") -> Prepared:
+    """Steps 1-3 of the module docstring."""
+    cfg = config.resolved()
+    if TARGET not in df.columns:
+        raise InputError(f"{source}: no {TARGET} column to train on")
+    present = np.unique(df["unit"].to_numpy()).tolist()
+    dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
+    columns = resolve_inputs(cfg.inputs, list(df.columns), source)
+    frame = sort_table(df[df["unit"].isin(dev)])
+    check_table(frame, columns, source)
+    unit = frame["unit"].to_numpy()
+    roles = assign_roles(unit, frame["cycle"].to_numpy(), dev, (), seed=cfg.seed,
+                         val_fraction=cfg.val_fraction, validation=cfg.validation,
+                         val_units=cfg.val_units, conformal_units=cfg.conformal_units,
+                         source=source)
+    raw = frame[columns].to_numpy(np.float64)
+    scaler = MinMaxScaler.fit(raw[roles == TRAIN], columns)
+    x = scaler.transform(raw)
+    y = frame[TARGET].to_numpy(np.float64)
+    if cfg.max_rul is not None:
+        y = np.minimum(y, cfg.max_rul)
+    a, b = segments(unit, roles)
+    seg_role = roles[a]
+    windows = {}
+    for role in (TRAIN, VALIDATION, CONFORMAL):
+        pick = seg_role == role
+        if pick.any():
+            windows[role] = make_windows(x, a[pick], b[pick], cfg.window, cfg.stride, y)
+    keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
+    return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test)
+
+
+def predict_windows(net: nn.Module, windows: Windows, device: torch.device,
+                    batch: int = EVAL_BATCH) -> np.ndarray:
+    """Network outputs on every window, float64 (n,)."""
+    net.eval()
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(windows), batch):
+            idx = torch.arange(i, min(i + batch, len(windows)))
+            out.append(net(windows.batch(idx).to(device)).double().cpu())
+    return torch.cat(out).numpy() if out else np.zeros(0)
+
+
+def _mse(net: nn.Module, windows: Windows, device: torch.device) -> float:
+    pred = predict_windows(net, windows, device)
+    d = pred - windows.target.double().numpy()
+    return float(np.mean(d * d))
+
+
+EpochCallback = Callable[[int, int, float, float | None], None]
+BatchCallback = Callable[[int, int, float], None]
+
+
+def train_member(prep: Prepared, seed: int, device: torch.device,
+                 on_batch: BatchCallback | None = None,
+                 on_epoch: EpochCallback | None = None) -> Member:
+    """Train one network from ``seed`` (module docstring, step 4)."""
+    cfg = prep.config
+    train = prep.windows.get(TRAIN)
+    if train is None or len(train) == 0:
+        raise InputError("no training windows (every training row is validation?)")
+    val = prep.windows.get(VALIDATION)
+    with deterministic(device):
+        net = build_model(cfg.model, len(prep.columns), cfg.window, seed=seed).to(device)
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, amsgrad=True)
+        order = torch.Generator().manual_seed(int(seed) + 1)
+        tw = train.to(device)
+        n = len(tw)
+        best, best_state, best_epoch, bad = float("inf"), None, 0, 0
+        history = []
+        for epoch in range(1, cfg.epochs + 1):
+            t0 = time.perf_counter()
+            net.train()
+            perm = torch.randperm(n, generator=order).to(device)
+            total = 0.0
+            for i in range(0, n, cfg.batch_size):
+                idx = perm[i:i + cfg.batch_size]
+                xb, yb = tw.batch(idx), tw.target[idx]
+                opt.zero_grad(set_to_none=True)
+                loss = torch.mean((net(xb) - yb) ** 2)
+                loss.backward()
+                opt.step()
+                total += float(loss.detach()) * len(idx)
+                if on_batch is not None:
+                    on_batch(epoch, min(i + cfg.batch_size, n), total / min(i + cfg.batch_size, n))
+            train_loss = total / n
+            val_loss = _mse(net, val, device) if val is not None and len(val) else None
+            history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
+                            "seconds": time.perf_counter() - t0})
+            if on_epoch is not None:
+                on_epoch(epoch, cfg.epochs, train_loss, val_loss)
+            score = train_loss if val_loss is None else val_loss
+            if score < best:
+                best, best_epoch, bad = score, epoch, 0
+                best_state = copy.deepcopy(net.state_dict())
+            else:
+                bad += 1
+                if val_loss is not None and bad >= cfg.patience:
+                    break
+        net.load_state_dict(best_state)
+    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+    return Member(int(seed), state, history, best_epoch, parameter_count(net))
+
+
+def _console():
+    from rich.console import Console
+
+    return Console(stderr=True, highlight=False)
+
+
+@contextmanager
+def progress_bar(n_windows: int, label: str, quiet: bool) -> Iterator[tuple]:
+    """``(on_batch, on_epoch)`` callbacks drawing one bar per epoch, or ``(None, None)``."""
+    if quiet:
+        yield None, None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    prog = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("{task.fields[loss]}"), TimeElapsedColumn(), console=_console())
+    state = {"task": None, "epoch": 0, "val": None}
+
+    def on_batch(epoch, done, loss):
+        if state["epoch"] != epoch:
+            state["epoch"] = epoch
+            state["task"] = prog.add_task(f"{label} epoch {epoch}", total=n_windows, loss="")
+        val = "" if state["val"] is None else f" val {state['val']:.4g}"
+        prog.update(state["task"], completed=done, loss=f"train {loss:.4g}{val}")
+
+    def on_epoch(epoch, epochs, train_loss, val_loss):
+        state["val"] = val_loss
+        val = "" if val_loss is None else f"  val {val_loss:.4g}"
+        prog.update(state["task"], loss=f"train {train_loss:.4g}{val}")
+
+    with prog:
+        yield on_batch, on_epoch
+
+
+def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
+        seeds: Sequence[int] | None = None, quiet: bool = True, source: str = "table"):
+    """Train one network per seed (default: ``config.seed``) on ``df`` -> a
+    :class:`ensemble.RulModel` (with a conformal interval when ``config.conformal_units``)."""
+    from .conformal import SplitConformal
+    from .ensemble import RulModel
+
+    prep = prepare(df, metadata, config, source)
+    cfg = prep.config
+    device = resolve_device(cfg.device)
+    seeds = [cfg.seed] if seeds is None else [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("no seeds to train")
+    members = []
+    for s in seeds:
+        label = f"{cfg.model} {cfg.inputs} seed {s}"
+        with progress_bar(len(prep.windows[TRAIN]), label, quiet) as (on_batch, on_epoch):
+            members.append(train_member(prep, s, device, on_batch, on_epoch))
+    model = RulModel(cfg, tuple(prep.columns), prep.scaler, members)
+    conf = prep.windows.get(CONFORMAL)
+    if conf is not None and len(conf):
+        with deterministic(device):
+            preds = np.mean([predict_windows(net, conf, device)
+                             for net in model.networks(device)], axis=0)
+        y_true = prep.frame[TARGET].to_numpy(np.float64)[conf.rows]
+        model.conformal = SplitConformal.calibrate(y_true, preds, cfg.alpha,
+                                                   sorted(set(cfg.conformal_units)))
+    return model
