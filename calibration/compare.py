@@ -39,9 +39,11 @@ import pandas as pd
 from engine_model import datasets
 from engine_model.validation import InputError
 
-from .base import CalibrationSetup, default_model, prepare_unit
+from .base import default_model
 from .crb import posterior_crb, unit_sensitivities, windowed_crb
 from .fleet import calibrate_fleet
+from .series import prepare_unit
+from .setup import CalibrationSetup
 
 DEFAULT_METHODS = ("ukf", "ekf", "mhe", "map_cycle")
 

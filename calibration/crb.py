@@ -115,7 +115,7 @@ def unit_sensitivities(model, series, setup, theta_true_est: np.ndarray, p=None)
     true values ``theta_true_est`` (N, k) of the estimated parameters (the others at
     ``setup.theta_fixed``: the model the estimators assume). Points whose steady state does
     not converge get zero information."""
-    from .base import scaled_sensitivities
+    from .observability import scaled_sensitivities
 
     th = setup.full_theta(theta_true_est)
     r = model.solve_series(series.w, th, p)

@@ -1,6 +1,6 @@
 """Extended Kalman filter of the health parameters with exact model sensitivities.
 
-Same state space as the UKF (:mod:`calibration.base`, paper eq. 5-6). Per sample ``n`` and
+Same state space as the UKF (:mod:`calibration.setup`, paper eq. 5-6). Per sample ``n`` and
 lane (unit)::
 
     predict   P <- P + q^2 dtau_n I                                  (m unchanged)
@@ -13,7 +13,7 @@ lane (unit)::
 
 The information form is algebraically the Kalman update (``K = P H^T S^-1``) and keeps ``P``
 symmetric positive definite by construction; it is symmetrised and checked like the UKF's
-(:func:`kalman.make_pd`) and the mean is projected onto the bounds. One model point per lane
+(:func:`lockstep.make_pd`) and the mean is projected onto the bounds. One model point per lane
 and step: all lanes' points in one batched Newton call and one call of the compiled
 sensitivity function.
 """
@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kalman import KalmanEstimator, LockstepFilter
+from .kalman import KalmanEstimator
+from .lockstep import LockstepFilter
 
 
 class ExtendedFilter(LockstepFilter):

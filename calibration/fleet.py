@@ -41,7 +41,8 @@ import pandas as pd
 from engine_model import datasets
 from engine_model.validation import InputError
 
-from .base import CalibrationSetup, estimator_class
+from .base import estimator_class
+from .setup import CalibrationSetup
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
 
@@ -248,10 +249,8 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     if not lengths:
         raise InputError(f"{source or 'data'}: no rows to calibrate")
 
-    from engine_model.datasets import _hyprog_version
-
     calib_meta = {"method": method, "options": options, "setup": setup_dict(setup),
-                  "hyprog_version": _hyprog_version()}
+                  "hyprog_version": datasets.hyprog_version()}
     run = FleetRun(method=method, setup=setup, options=options,
                    out=None if out is None else str(out))
     out_meta = {**meta, "calibration": calib_meta}

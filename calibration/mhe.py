@@ -64,20 +64,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from engine_model.batch_eval import pad_rows
 from engine_model.channels import XS_NAMES
+from engine_model.interface import SymbolicSteadyStateModel
 from engine_model.validation import InputError
 
-from .base import (
-    CalibrationResult,
-    CalibrationSetup,
-    Estimator,
-    UnitSeries,
-    check_observability,
-    make_result,
-    prepare_unit,
-    timed,
-)
+from .base import Estimator, timed
 from .mhe_nlp import HESSIANS, MODES, N_TH, N_Y, StageKernels, WindowNLP, reduced_sensitivity
+from .observability import check_observability
+from .result import CalibrationResult, make_result
+from .series import UnitSeries, prepare_unit
+from .setup import CalibrationSetup
 
 _PAD = 16  # a window's length is padded up to a multiple of this (one NLP per padded length)
 
@@ -188,16 +185,115 @@ def _chol_info(cov):
     return np.linalg.cholesky(0.5 * (info + info.T)).T
 
 
-def _pad(a, n):
-    if len(a) == n:
-        return a
-    return np.concatenate([a, np.repeat(a[-1:], n - len(a), axis=0)], axis=0)
+@dataclass(frozen=True)
+class Segment:
+    """Samples ``start:stop`` form one window (or cycle); its estimates are assigned to the
+    samples ``start:assign_end`` (the ones that leave before the next window starts)."""
+
+    start: int
+    stop: int
+    assign_end: int
 
 
-def run_windows(model, series: UnitSeries, setup: CalibrationSetup, options: MHEOptions,
-                per_cycle: bool = False, p=None) -> CalibrationResult:
+def segments(n: int, window: int, stride: int, cycle: np.ndarray | None = None
+             ) -> list[Segment]:
+    """The windows of a series of ``n`` samples, ``stride`` apart (the last one may be
+    shorter and gets all its samples), or, with ``cycle``, one segment per flight cycle."""
+    if cycle is not None:
+        edges = np.flatnonzero(np.diff(cycle, prepend=cycle[0] - 1) != 0).tolist() + [n]
+        return [Segment(a, b, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    starts = list(range(0, max(n - window, 0) + 1, stride))
+    if starts[-1] + window < n:
+        starts.append(starts[-1] + stride)
+    out = []
+    for i, a in enumerate(starts):
+        b = min(a + window, n)
+        out.append(Segment(a, b, b if i == len(starts) - 1 else min(a + stride, n)))
+    return out
+
+
+@dataclass
+class ArrivalCost:
+    """``1/2 |C (theta_first - mu)|^2``: what the samples before a window say about it."""
+
+    mu: np.ndarray
+    C: np.ndarray
+
+    @classmethod
+    def prior(cls, mean: np.ndarray, std: np.ndarray) -> ArrivalCost:
+        C = _chol_info(np.diag(std ** 2)) if len(mean) else np.zeros((0, 0))
+        return cls(mean.copy(), C)
+
+    @property
+    def information(self) -> np.ndarray:
+        return self.C.T @ self.C
+
+    def fold_constant(self, theta: np.ndarray, S: np.ndarray, e: np.ndarray, drift_var: float
+                      ) -> ArrivalCost:
+        """Fold leaving samples (sensitivities ``S`` (n, 16, nt), residuals ``e`` (n, 16)) of a
+        constant-theta window solved at ``theta`` into the next arrival cost (module
+        docstring), inflated by the drift variance over the gap."""
+        CtC = self.information
+        info = CtC + np.einsum("nki,nkj->ij", S, S)
+        g_d = np.einsum("nki,nk->i", S, e)
+        mu = theta - np.linalg.solve(info, CtC @ (theta - self.mu) + g_d)
+        cov = np.linalg.inv(info) + np.eye(len(mu)) * drift_var
+        return ArrivalCost(mu, _chol_info(cov))
+
+    def fold_random_walk(self, theta: np.ndarray, S: np.ndarray, e: np.ndarray,
+                         step_var: np.ndarray, drift_var: float) -> ArrivalCost:
+        """The same for a random-walk window: a linearised information filter through the
+        leaving samples (``theta`` (n, nt), ``step_var`` (n - 1,) drift variances between
+        them), then the drift over the gap."""
+        nt = len(self.mu)
+        m_f, cov_f = self.mu, np.linalg.inv(self.information)
+        for k in range(len(theta)):
+            if k > 0:
+                cov_f = cov_f + np.eye(nt) * step_var[k - 1]
+            p_inv = np.linalg.inv(cov_f)
+            info = p_inv + S[k].T @ S[k]
+            m_f = theta[k] - np.linalg.solve(info, p_inv @ (theta[k] - m_f) + S[k].T @ e[k])
+            cov_f = np.linalg.inv(info)
+        return ArrivalCost(m_f, _chol_info(cov_f + np.eye(nt) * drift_var))
+
+
+def _new_diagnostics(per_cycle: bool, o: MHEOptions, mode: str, obs, n_fail: int) -> dict:
+    return {"method": "map_cycle" if per_cycle else "mhe",
+            "mode": mode, "hessian": o.hessian,
+            "window": None if per_cycle else int(o.window),
+            "stride": None if per_cycle else int(o.stride or o.window),
+            "fisher_rank": obs.rank, "fisher_unit": obs.fisher.tolist(),
+            "windows": 0, "iterations": [], "status": [], "window_starts": [],
+            "window_data_rank": [], "non_converged_windows": 0, "seconds_nlp": 0.0,
+            "x_warm_start_failures": n_fail}
+
+
+def _record_window(diag: dict, seg: Segment, sol, info_k: np.ndarray) -> None:
+    diag["windows"] += 1
+    diag["iterations"].append(sol.iterations)
+    diag["status"].append(sol.status)
+    diag["window_starts"].append(int(seg.start))
+    diag["seconds_nlp"] += sol.seconds
+    diag["window_data_rank"].append(int(np.linalg.matrix_rank(info_k.sum(0))))
+    if not sol.success:
+        diag["non_converged_windows"] += 1
+
+
+def _window_covariance(mode: str, info_k: np.ndarray, CtC: np.ndarray, d) -> np.ndarray:
+    """Posterior covariance of each sample's theta (m, nt, nt): the inverse of the window's
+    Fisher information with the arrival cost (and the drift prior in random-walk mode)."""
+    m_len, nt = info_k.shape[0], info_k.shape[1]
+    if mode == "constant":
+        return np.broadcast_to(np.linalg.inv(CtC + info_k.sum(0)), (m_len, nt, nt))
+    return _rw_marginals(info_k, CtC, d[:, :m_len - 1] ** 2)
+
+
+def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: CalibrationSetup,
+                options: MHEOptions, per_cycle: bool = False, p=None) -> CalibrationResult:
     """Windowed MAP / MHE (``per_cycle=False``) or batch MAP per flight cycle
-    (``per_cycle=True``) of ``setup.params`` along one checked unit series."""
+    (``per_cycle=True``) of ``setup.params`` along one checked unit series: the starting
+    unknowns and observability at the prior mean, then per segment a warm-started NLP, its
+    covariance and the arrival cost of the next (module docstring)."""
     o = options
     t_start = time.perf_counter()
     ser = _kernel_series(series, p)
@@ -206,96 +302,61 @@ def run_windows(model, series: UnitSeries, setup: CalibrationSetup, options: MHE
         raise InputError("map_cycle: the data have no 'cycle' column")
     theta_base = setup.theta_base()  # fixed values + prior mean of the estimated ones
     kern = kernels_for(model, o.compiled)
-    params = setup.params
-    k_all = len(params)
+    mode = "constant" if per_cycle else o.mode
 
     # starting unknowns at the prior mean; observability of the requested parameters
     r0 = model.solve_series(ser.w, np.tile(theta_base, (n, 1)), ser.p)
     x_prior = r0.x
     obs = check_observability(model, series, setup, x=x_prior if r0.converged.all() else None,
                               p=ser.p)
-    keep = [params.index(q) for q in obs.observable]
+    keep = [setup.params.index(q) for q in obs.observable]
     est = setup.param_index[keep]
     nt = len(est)
 
     theta_hat = np.tile(setup.prior_mean_vec(), (n, 1))
-    theta_cov = np.full((n, k_all, k_all), np.nan)
+    theta_cov = np.full((n, setup.k, setup.k), np.nan)
     x_sol = x_prior.copy()
     th_sol_full = np.tile(theta_base, (n, 1))
-    stride = int(o.stride or o.window)
-    diag = {"method": "map_cycle" if per_cycle else "mhe",
-            "mode": "constant" if per_cycle else o.mode, "hessian": o.hessian,
-            "window": None if per_cycle else int(o.window),
-            "stride": None if per_cycle else stride,
-            "fisher_rank": obs.rank, "fisher_unit": obs.fisher.tolist(),
-            "windows": 0, "iterations": [], "status": [], "window_starts": [],
-            "window_data_rank": [], "non_converged_windows": 0, "seconds_nlp": 0.0,
-            "x_warm_start_failures": int((~r0.converged).sum())}
-
-    mode = "constant" if per_cycle else o.mode
+    diag = _new_diagnostics(per_cycle, o, mode, obs, int((~r0.converged).sum()))
     cache = _NLPCache(kern, est, mode, o.hessian, o.ipopt_options, o.threads)
     lb = np.full(nt, setup.bounds[0])
     ub = np.full(nt, setup.bounds[1])
-    prior_mu = setup.prior_mean_vec()[keep]
-    prior_cov = np.diag(setup.prior_std_vec()[keep] ** 2)
-    C0 = _chol_info(prior_cov) if nt else np.zeros((0, 0))
-    mu, C = prior_mu.copy(), C0.copy()
+    prior = ArrivalCost.prior(setup.prior_mean_vec()[keep], setup.prior_std_vec()[keep])
+    arrival = prior
     q2 = setup.drift_std_per_sqrt_h ** 2
-    if per_cycle:
-        cyc = ser.cycle
-        edges = np.flatnonzero(np.diff(cyc, prepend=cyc[0] - 1) != 0).tolist() + [n]
-        segments = [(a, b, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-    else:
-        win = int(o.window)
-        starts = list(range(0, max(n - win, 0) + 1, stride))
-        if starts[-1] + win < n:
-            starts.append(starts[-1] + stride)
-        segments = []
-        for i, a in enumerate(starts):
-            b = min(a + win, n)
-            segments.append((a, b, b if i == len(starts) - 1 else min(a + stride, n)))
-    th_prev = mu.copy()
-    for a, b, assign_end in segments if nt else []:
+    th_prev = prior.mu.copy()
+    segs = segments(n, int(o.window), int(o.stride or o.window),
+                    ser.cycle if per_cycle else None) if nt else []
+    for seg in segs:
+        a, b = seg.start, seg.stop
         m_len = b - a
         n_pad = int(np.ceil(m_len / _PAD) * _PAD)
-        nlp = cache.get(n_pad)
         sl = slice(a, b)
         p_sl = None if ser.p is None else ser.p[sl]
-        s_win = _pad(ser.s[sl], n_pad)
+        s_win = pad_rows(ser.s[sl], n_pad)
         s_win[m_len:] = 0.0  # padding samples carry no data
         if per_cycle:  # each cycle on its own: the prior, no arrival cost
-            mu, C, th_prev = prior_mu, C0, prior_mu
+            arrival, th_prev = prior, prior.mu
         # warm start: theta of the last window, x by the compiled solve at that theta
         x0, nfail = _solve_x(model, ser.w[sl], _full_theta(th_prev, est, theta_base), p_sl,
                              x_prior[sl])
         diag["x_warm_start_failures"] += nfail
         d = None
         if mode == "random_walk":
-            dtau = np.diff(_pad(ser.tau_h[sl], n_pad))
+            dtau = np.diff(pad_rows(ser.tau_h[sl], n_pad))
             d = np.tile(1.0 / np.sqrt(np.maximum(q2 * dtau, 1e-30)), (nt, 1))
             d[:, m_len - 1:] = 1e3  # padding samples: tied to the last real one
-        pv = nlp.params(_pad(ser.w[sl], n_pad), _pad(ser.y[sl], n_pad), s_win, theta_base, mu,
-                        C, d, None if p_sl is None else _pad(p_sl, n_pad))
-        sol = nlp.solve(pv, _pad(x0, n_pad), th_prev, lb, ub)
-        diag["windows"] += 1
-        diag["iterations"].append(sol.iterations)
-        diag["status"].append(sol.status)
-        diag["window_starts"].append(int(a))
-        diag["seconds_nlp"] += sol.seconds
-        if not sol.success:
-            diag["non_converged_windows"] += 1
+        nlp = cache.get(n_pad)
+        pv = nlp.params(pad_rows(ser.w[sl], n_pad), pad_rows(ser.y[sl], n_pad), s_win, theta_base,
+                        arrival.mu, arrival.C, d, None if p_sl is None else pad_rows(p_sl, n_pad))
+        sol = nlp.solve(pv, pad_rows(x0, n_pad), th_prev, lb, ub)
         xk, thk = sol.x[:m_len], sol.theta[:m_len]
         th_full_k = _full_theta(thk, est, theta_base)
         S, e = _window_info(kern, xk, th_full_k, ser, sl, est)
         info_k = np.einsum("nki,nkj->nij", S, S)
-        diag["window_data_rank"].append(int(np.linalg.matrix_rank(info_k.sum(0))))
-        CtC = C.T @ C
-        # posterior covariance: inverse of the window's Fisher information with the prior
-        if mode == "constant":
-            cov_k = np.broadcast_to(np.linalg.inv(CtC + info_k.sum(0)), (m_len, nt, nt))
-        else:
-            cov_k = _rw_marginals(info_k, CtC, d[:, :m_len - 1] ** 2)
-        rows = np.arange(a, assign_end)
+        _record_window(diag, seg, sol, info_k)
+        cov_k = _window_covariance(mode, info_k, arrival.information, d)
+        rows = np.arange(a, seg.assign_end)
         loc = rows - a
         theta_hat[np.ix_(rows, keep)] = thk[loc]
         theta_cov[np.ix_(rows, keep, keep)] = cov_k[loc]
@@ -304,36 +365,24 @@ def run_windows(model, series: UnitSeries, setup: CalibrationSetup, options: MHE
         if per_cycle:
             continue
         # arrival cost of the next window: fold in the samples that leave this one
-        n_leave = assign_end - a
+        n_leave = seg.assign_end - a
+        nxt = ser.tau_h[min(seg.assign_end, n - 1)]
         if mode == "constant":
-            th_hat = thk[0]
-            info = CtC + info_k[:n_leave].sum(0)
-            g_d = np.einsum("nki,nk->i", S[:n_leave], e[:n_leave])
-            mu_new = th_hat - np.linalg.solve(info, CtC @ (th_hat - mu) + g_d)
-            cov_new = np.linalg.inv(info)
-            gap = ser.tau_h[min(assign_end, n - 1)] - ser.tau_h[a]
+            arrival = arrival.fold_constant(thk[0], S[:n_leave], e[:n_leave],
+                                            q2 * max(float(nxt - ser.tau_h[a]), 0.0))
         else:
-            m_f, cov_f = mu, np.linalg.inv(CtC)
-            for k in range(n_leave):
-                if k > 0:
-                    cov_f = cov_f + np.eye(nt) * q2 * (ser.tau_h[a + k] - ser.tau_h[a + k - 1])
-                p_inv = np.linalg.inv(cov_f)
-                info = p_inv + info_k[k]
-                m_f = thk[k] - np.linalg.solve(info, p_inv @ (thk[k] - m_f) + S[k].T @ e[k])
-                cov_f = np.linalg.inv(info)
-            mu_new, cov_new = m_f, cov_f
-            gap = ser.tau_h[min(assign_end, n - 1)] - ser.tau_h[assign_end - 1]
-        cov_new = cov_new + np.eye(nt) * q2 * max(float(gap), 0.0)
-        mu, C = np.clip(mu_new, lb, ub), _chol_info(cov_new)
+            steps = q2 * np.diff(ser.tau_h[a:a + n_leave])
+            arrival = arrival.fold_random_walk(
+                thk[:n_leave], S[:n_leave], e[:n_leave], steps,
+                q2 * max(float(nxt - ser.tau_h[seg.assign_end - 1]), 0.0))
+        arrival = ArrivalCost(np.clip(arrival.mu, lb, ub), arrival.C)
         if not o.arrival_cost:
-            mu, C = prior_mu, C0
+            arrival = prior
         th_prev = thk[n_leave - 1] if mode == "random_walk" else thk[0]
 
     # outputs at the estimate, normalised residuals of the used sensors
     y_hat = model.outputs_at(x_sol, ser.w, th_sol_full, ser.p)
-    from engine_model.channels import OUTPUT_NAMES
-
-    cols = [OUTPUT_NAMES.index(c) for c in series.sensors]
+    cols = [model.output_names.index(c) for c in series.sensors]
     resid = (series.y - y_hat[:, cols]) / series.sigma
     its = diag["iterations"]
     diag["mean_iterations"] = float(np.mean(its)) if its else 0.0

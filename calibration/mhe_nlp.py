@@ -46,11 +46,14 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sps
 
-from engine_model.channels import OUTPUT_NAMES, THETA_NAMES, XS_NAMES
+from engine_model.channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES, XS_NAMES
+from engine_model.interface import SymbolicSteadyStateModel
+from engine_model.turbofan import N_UNKNOWNS
 
-N_X = 7
+N_X = N_UNKNOWNS  # the engine model's unknowns per sample
 N_TH = len(THETA_NAMES)
 N_Y = len(XS_NAMES)
+N_W = len(W_NAMES)
 N_Z = N_X + N_TH  # per-sample variables of the kernels: x and all ten theta
 
 HESSIANS = ("gauss-newton", "exact")
@@ -84,15 +87,15 @@ class StageKernels:
     expression graphs in CasADi's virtual machine (slower; no compiler needed).
     """
 
-    def __init__(self, model, compiled: bool = True):
+    def __init__(self, model: SymbolicSteadyStateModel, compiled: bool = True):
         rs = model.residual_system()
         self.n_p = len(rs.param_names)
         self.compiled = compiled
-        self._key = "hyprog_mhe" + (("_" + model.effects.key) if model.effects.key else "")
+        self._key = "hyprog_mhe" + (("_" + model.variant_key) if model.variant_key else "")
         iy = [OUTPUT_NAMES.index(c) for c in XS_NAMES]
         x = ca.SX.sym("x", N_X)
         th = ca.SX.sym("theta", N_TH)
-        w = ca.SX.sym("w", 4)
+        w = ca.SX.sym("w", N_W)
         y = ca.SX.sym("y", N_Y)
         s = ca.SX.sym("s", N_Y)
         p = ca.SX.sym("p", self.n_p)
@@ -231,7 +234,7 @@ class WindowNLP:
         nzs = len(zsel)
 
         V = ca.MX.sym("V", nv)
-        W = ca.MX.sym("W", 4, n)
+        W = ca.MX.sym("W", N_W, n)
         Y = ca.MX.sym("Y", N_Y, n)
         S = ca.MX.sym("S", N_Y, n)
         TF = ca.MX.sym("TF", N_TH, 1)  # fixed (not estimated) theta
@@ -240,7 +243,7 @@ class WindowNLP:
         D = ca.MX.sym("D", nt, max(n - 1, 1)) if rw else ca.MX.sym("D", 0, 1)
         PM = ca.MX.sym("PM", kernels.n_p, n)
         P = ca.vertcat(ca.vec(W), ca.vec(Y), ca.vec(S), TF, MU, ca.vec(C), ca.vec(D), ca.vec(PM))
-        self._p_sizes = [4 * n, N_Y * n, N_Y * n, N_TH, nt, nt * nt, D.numel(), kernels.n_p * n]
+        self._p_sizes = [N_W * n, N_Y * n, N_Y * n, N_TH, nt, nt * nt, D.numel(), kernels.n_p * n]
 
         X = ca.reshape(V[vx.ravel().tolist()], N_X, n)
         E_sel = ca.DM(sps.csc_matrix((np.ones(nt), (self.est, np.arange(nt))), shape=(N_TH, nt)))

@@ -15,7 +15,7 @@ chosen sensors (no surrogate). Per sample ``n`` and lane (unit)::
 
 Measurements are whitened by the sensor noise ``sigma_n`` (``R_n = diag(sigma_n^2)`` becomes
 the identity). After every update ``P`` is symmetrised and, if a Cholesky factorisation fails,
-its eigenvalues are floored (:func:`kalman.make_pd`); the mean is projected onto the bounds.
+its eigenvalues are floored (:func:`lockstep.make_pd`); the mean is projected onto the bounds.
 The normalised innovation squared ``nu^T S^-1 nu`` (NIS, chi-square with ``m`` degrees of
 freedom for a consistent filter) and the innovations ``nu`` are recorded.
 
@@ -25,7 +25,7 @@ smooth and close to linear over a few standard deviations of theta, so the wide 
 nothing, while a small ``alpha`` (e.g. 1e-3) puts the points so close together that the
 solver's tolerance noise is amplified by ``1 / alpha^2`` in the weights.
 
-Runs many units in lockstep (:class:`kalman.LockstepFilter`); the estimator interface is
+Runs many units in lockstep (:class:`lockstep.LockstepFilter`); the estimator interface is
 :class:`UKF` (``UKF().estimate(df, setup)``, ``estimate_many``).
 """
 
@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kalman import KalmanEstimator, LockstepFilter
+from .kalman import KalmanEstimator
+from .lockstep import LockstepFilter
 
 
 class UnscentedFilter(LockstepFilter):

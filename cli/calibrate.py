@@ -172,8 +172,7 @@ def compare_cmd(
     speed."""
     import warnings
 
-    from calibration import UnobservableWarning
-    from calibration.base import estimator_class
+    from calibration import UnobservableWarning, estimator_class
     from calibration.compare import compare, format_report
 
     with user_errors(), warnings.catch_warnings():

@@ -113,6 +113,12 @@ class EngineDesign:
         (t0, n0), (t1, n1) = self.spec.tra_schedule
         return n0 + (n1 - n0) * (tra - t0) / (t1 - t0)
 
+    def tra_from_pct(self, pct):
+        """The throttle-resolver angle [%] that demands corrected fan speed ``pct`` [%] (the
+        inverse of :meth:`nf_demand_pct`)."""
+        (t0, n0), (t1, n1) = self.spec.tra_schedule
+        return t0 + (pct - n0) * (t1 - t0) / (n1 - n0)
+
 
 def _beta_surge(cmap_kw, T_in, head_des, pr_des, sm):
     pr_s = pr_des * (1.0 + sm / 100.0)

@@ -10,16 +10,17 @@ FT_PER_KFT = 1000.0  # C-MAPSS (2008) gives altitude in thousands of feet
 PSIA_TO_PA = 6894.757293168
 LBM_TO_KG = 0.45359237
 LBF_TO_N = 4.4482216152605
-R_TO_K = 1.0 / 1.8
+R_PER_K = 1.8  # degR per K (a temperature difference or an absolute temperature)
+R_TO_K = 1.0 / R_PER_K
 KT_TO_MS = 0.514444444
 
 T_STD_K = 288.15  # sea-level standard temperature (ISA), K
 P_STD_PA = 101325.0  # sea-level standard pressure (ISA), Pa
-T_STD_R = T_STD_K * 1.8  # 518.67 degR
+T_STD_R = T_STD_K * R_PER_K  # 518.67 degR
 
 
 def k_to_r(t_k):
-    return t_k * 1.8
+    return t_k * R_PER_K
 
 
 def r_to_k(t_r):

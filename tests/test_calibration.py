@@ -19,8 +19,8 @@ import pandas as pd
 import pytest
 
 from calibration import CalibrationSetup, UnobservableError, UnobservableWarning, get_estimator
-from calibration.base import prepare_unit
 from calibration.crb import posterior_crb, unit_posterior_crb, window_crb, windowed_crb
+from calibration.series import prepare_unit
 from engine_model import datasets
 from engine_model.channels import OUTPUT_NAMES, PAPER_THETA, THETA_NAMES, XS_NAMES, XV_NAMES
 from engine_model.sensor_noise import add_noise

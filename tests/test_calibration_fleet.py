@@ -11,10 +11,11 @@ import pytest
 from typer.testing import CliRunner
 
 from calibration import CalibrationSetup, get_estimator
-from calibration.base import HAT_NAMES, prepare_unit
 from calibration.compare import compare, format_report
 from calibration.crb import unit_posterior_crb, unit_sensitivities, windowed_crb
 from calibration.fleet import calibrate_fleet, features_of, plan_tasks
+from calibration.result import HAT_NAMES
+from calibration.series import prepare_unit
 from cli.main import app
 from engine_model import datasets
 from engine_model.channels import PAPER_THETA

@@ -651,14 +651,14 @@ def test_c_newton_driver_runs_the_numpy_iteration(model):
 
     w, th = random_envelope(400, seed=11)
     x0 = model.initial_guess(w, th)
-    a = model._newton(w, th, x0)
-    b = model._newton_python(w, th, x0)
+    a = model.solve_from(w, th, x0, retry=False, backend="c")
+    b = model.solve_from(w, th, x0, retry=False, backend="numpy")
     assert a.converged.all() and b.converged.all()
     np.testing.assert_array_equal(a.iterations, b.iterations)
     np.testing.assert_allclose(a.x, b.x, rtol=0.0, atol=1e-9)
     assert (a.residual_norm < 1e-10).all()
     # a point that cannot converge in the allowed iterations is reported, not hidden
-    c = model._newton(w[:3], th[:3], x0[:3] + 0.5, max_iter=1)
+    c = model.solve_from(w[:3], th[:3], x0[:3] + 0.5, max_iter=1, retry=False)
     assert not c.converged.any() and (c.iterations == 1).all()
     assert np.all(c.residual_norm > 1e-10)
 
@@ -675,8 +675,6 @@ def test_rescued_point_reports_the_iterations_it_used(model):
 def test_newton_with_carried_jacobians_reaches_the_same_roots(model):
     """Chord iteration from the previous call's LU factors (the filters' warm start) converges
     to the roots of a fresh-Jacobian solve, and stores factors for every converged point."""
-    from engine_model.model import JacobianStore
-
     if not model.compiled:
         pytest.skip("LU carrying is a feature of the compiled driver")
     rng = np.random.default_rng(3)
@@ -687,15 +685,15 @@ def test_newton_with_carried_jacobians_reaches_the_same_roots(model):
     th[:, 6] = rng.uniform(-0.02, 0, n)
     first = model.solve(w, th)
     assert first.converged.all()
-    store = JacobianStore.empty(n)
-    model._newton(w, th, first.x, lu=store)
+    store = model.jacobian_store(n)
+    model.solve_from(w, th, first.x, lu=store, retry=False)
     assert store.HAVE.all()
     # the next sample: w and theta move a little; start from the last roots and factors
     w2 = w + np.array([50.0, 0.002, 0.5, 0.3])
     th2 = th.copy()
     th2[:, 6] -= 5e-4
-    carried = model._newton(w2, th2, first.x, lu=store)
-    fresh = model._newton(w2, th2, first.x)
+    carried = model.solve_from(w2, th2, first.x, lu=store, retry=False)
+    fresh = model.solve_from(w2, th2, first.x, retry=False)
     assert carried.converged.all() and fresh.converged.all()
     np.testing.assert_allclose(carried.x, fresh.x, rtol=1e-8, atol=1e-10)
     assert np.all(carried.residual_norm < 1e-10)

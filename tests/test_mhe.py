@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from calibration.base import CalibrationSetup, UnobservableError, get_estimator
+from calibration import CalibrationSetup, UnobservableError, get_estimator
 from engine_model import flight_profiles as fp
 from engine_model import sensor_noise
 from engine_model.channels import OUTPUT_NAMES, PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES

@@ -1,0 +1,134 @@
+"""One unit's data, checked and converted to the arrays every estimator uses.
+
+:func:`prepare_unit` checks a unit's DataFrame (columns, NaN, envelope, positive readings;
+errors name the source file, unit, row and column), evaluates the sensor noise ``sigma`` of
+:mod:`engine_model.sensor_noise` and the drift time ``dtau`` of the random-walk prior
+(:mod:`calibration.setup`: per cycle or per time).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from engine_model.channels import W_NAMES
+from engine_model.sensor_noise import sigma_abs
+from engine_model.validation import InputError, check_w
+
+from .setup import CalibrationSetup
+
+
+def error_prefix(unit, source) -> str:
+    """The ``"<file>, unit <n>: "`` prefix of an error message (empty when neither known)."""
+    parts = [str(source)] if source is not None else []
+    if unit is not None:
+        parts.append(f"unit {unit}")
+    return (", ".join(parts) + ": ") if parts else ""
+
+
+@dataclass
+class UnitSeries:
+    """One unit's data as arrays, checked.
+
+    ``w`` (N, 4), ``y`` (N, m) readings of ``sensors``, ``sigma`` (N, m) their noise std,
+    ``dt_h`` (N,) operating time since the previous sample [h] (0 at the first; one sample
+    period across a flight boundary), ``dtau_h`` (N,) the drift time before each sample
+    (``setup.drift_per``: equal to ``dt_h``, or the previous cycle's duration at a cycle's
+    first sample and 0 elsewhere),
+    ``cycle`` (N,) or None, ``index`` the input rows' labels, ``unit`` the unit label or None.
+    """
+
+    w: np.ndarray
+    y: np.ndarray
+    sigma: np.ndarray
+    dt_h: np.ndarray
+    dtau_h: np.ndarray
+    sensors: tuple
+    index: pd.Index
+    cycle: np.ndarray | None = None
+    unit: object = None
+
+    def __len__(self):
+        return len(self.w)
+
+    def q_diag(self, setup: CalibrationSetup) -> np.ndarray:
+        """(N,) variance of the random-walk step before each sample (same for every theta)."""
+        return setup.drift_std_per_sqrt_h ** 2 * self.dtau_h
+
+
+def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> UnitSeries:
+    """Check and convert one unit's DataFrame. Errors name the source (file), unit, row and
+    column: a missing column, a NaN or infinite value, an operating point outside the
+    envelope, a reading <= 0 where the noise model needs a positive one."""
+    unit = None
+    if "unit" in df.columns and len(df):
+        u = pd.unique(df["unit"])
+        if len(u) > 1:
+            raise InputError(f"{error_prefix(None, source)}one unit at a time, got units "
+                             f"{', '.join(map(str, u[:5]))}")
+        unit = u[0].item() if hasattr(u[0], "item") else u[0]
+    where = error_prefix(unit, source)
+    if len(df) == 0:
+        raise InputError(f"{where}no rows")
+    missing = [c for c in W_NAMES if c not in df.columns]
+    if missing:
+        raise InputError(f"{where}missing column(s) {', '.join(missing)}")
+    try:
+        sensors = setup.resolve_sensors(df.columns)
+    except InputError as e:
+        raise InputError(f"{where}{e}") from None
+    index = df.index
+    w = df[list(W_NAMES)].to_numpy(float)
+    y = df[list(sensors)].to_numpy(float)
+    for arr, names in ((w, W_NAMES), (y, sensors)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            raise InputError(f"{where}row {index[i]}, column {names[j]}: value is {arr[i, j]}"
+                             " (NaN or infinite)")
+    nonpos = y <= 0
+    if nonpos.any():
+        i, j = np.argwhere(nonpos)[0]
+        raise InputError(f"{where}row {index[i]}, column {sensors[j]} = {y[i, j]:g}: a "
+                         "reading must be positive (noise is proportional to it)")
+    try:
+        check_w(w, np.asarray(index), "data")
+    except InputError as e:
+        raise InputError(f"{where}{str(e).removeprefix('data: ')}") from None
+    sigma = sigma_abs(y, sensors, scale=setup.noise_scale)
+    n = len(df)
+    cycle = df["cycle"].to_numpy() if "cycle" in df.columns else None
+    period = setup.sample_period_s
+    if "t" in df.columns:
+        t = df["t"].to_numpy(float)
+        if not np.all(np.isfinite(t)):
+            i = int(np.flatnonzero(~np.isfinite(t))[0])
+            raise InputError(f"{where}row {index[i]}, column t: value is {t[i]}")
+        dt = np.diff(t, prepend=t[0])
+        pos = dt[dt > 0]
+        period = float(np.median(pos)) if pos.size else period
+        new = dt <= 0
+        if cycle is not None:
+            new |= np.diff(cycle, prepend=cycle[0]) != 0
+        dt = np.where(new, period, dt)
+    else:
+        dt = np.full(n, period)
+    dt[0] = 0.0
+    per = setup.drift_per
+    if per == "auto":
+        per = "cycle" if cycle is not None else "time"
+    if per == "cycle":
+        if cycle is None:
+            raise InputError(f"{where}drift per cycle needs a 'cycle' column")
+        starts = np.flatnonzero(np.diff(cycle, prepend=cycle[0]) != 0)
+        # a cycle's recorded duration: the spacing of its samples, one period for the first
+        durations = np.add.reduceat(dt, np.concatenate([[0], starts]))
+        durations[0] += period
+        dtau = np.zeros(n)
+        dtau[starts] = durations[:-1]
+    else:
+        dtau = dt.copy()
+    return UnitSeries(w=w, y=y, sigma=sigma, dt_h=dt / 3600.0, dtau_h=dtau / 3600.0,
+                      sensors=sensors, index=index, cycle=cycle, unit=unit)
