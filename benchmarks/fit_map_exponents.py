@@ -18,6 +18,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from engine_model.design import DesignSpec, design_engine  # noqa: E402
 from engine_model.turbofan import X_DESIGN, cycle  # noqa: E402
+from engine_model.units import T_STD_R  # noqa: E402
 
 
 def working_point(d, w_target):
@@ -28,7 +29,7 @@ def working_point(d, w_target):
     step = ca.Function("s", [x, w, th], [-ca.solve(ca.jacobian(r, x), r), r])
     n_lpc = ca.Function("n", [x, w, th], [st["n_lpc"], st["n_fan"]])
     xx = np.array(X_DESIGN, float)
-    w0 = np.array([0.0, 0.0, 100.0, 518.67])
+    w0 = np.array([0.0, 0.0, 100.0, T_STD_R])
     for lam in np.linspace(0, 1, 21)[1:]:
         ww = w0 + lam * (np.asarray(w_target) - w0)
         for _ in range(50):
@@ -46,7 +47,7 @@ def main():
     maps = {k: dict(getattr(spec, k), k_flow=v[0], k_head=v[1]) for k, v in start.items()}
     for it in range(8):
         d = design_engine(replace(spec, **maps))
-        xx, n_fan, n_lpc = working_point(d, [0.0, 0.0, 50.0, 518.67])
+        xx, n_fan, n_lpc = working_point(d, [0.0, 0.0, 50.0, T_STD_R])
         print(f"iteration {it}: beta fan/LPC/HPC = {xx[0]:+.5f} {xx[1]:+.5f} {xx[2]:+.5f}")
         for key, beta, n in (("fan_map", xx[0], n_fan), ("lpc_map", xx[1], n_lpc),
                              ("hpc_map", xx[2], xx[3])):

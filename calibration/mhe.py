@@ -70,7 +70,7 @@ from engine_model.interface import SymbolicSteadyStateModel
 from engine_model.validation import InputError
 
 from .base import Estimator, timed
-from .mhe_nlp import HESSIANS, MODES, N_TH, N_Y, StageKernels, WindowNLP, reduced_sensitivity
+from .mhe_nlp import HESSIANS, MODES, N_Y, StageKernels, WindowNLP, reduced_sensitivity
 from .observability import check_observability
 from .result import CalibrationResult, make_result
 from .series import UnitSeries, prepare_unit
@@ -156,13 +156,6 @@ def _kernel_series(series: UnitSeries, p) -> _Series:
         pm = np.tile(pm, (n, 1)) if pm.ndim == 1 else pm
     return _Series(w=series.w, y=y, s=s, tau_h=np.cumsum(series.dt_h), cycle=series.cycle,
                    p=pm)
-
-
-def _full_theta(theta_est, est, theta_base):
-    th = np.broadcast_to(np.asarray(theta_base, float),
-                         (*np.shape(theta_est)[:-1], N_TH)).copy()
-    th[..., est] = theta_est
-    return th
 
 
 def _solve_x(model, w, th_full, p, x_fallback):
@@ -338,7 +331,7 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
         if per_cycle:  # each cycle on its own: the prior, no arrival cost
             arrival, th_prev = prior, prior.mu
         # warm start: theta of the last window, x by the compiled solve at that theta
-        x0, nfail = _solve_x(model, ser.w[sl], _full_theta(th_prev, est, theta_base), p_sl,
+        x0, nfail = _solve_x(model, ser.w[sl], setup.full_theta(th_prev, est), p_sl,
                              x_prior[sl])
         diag["x_warm_start_failures"] += nfail
         d = None
@@ -351,7 +344,7 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
                         arrival.mu, arrival.C, d, None if p_sl is None else pad_rows(p_sl, n_pad))
         sol = nlp.solve(pv, pad_rows(x0, n_pad), th_prev, lb, ub)
         xk, thk = sol.x[:m_len], sol.theta[:m_len]
-        th_full_k = _full_theta(thk, est, theta_base)
+        th_full_k = setup.full_theta(thk, est)
         S, e = _window_info(kern, xk, th_full_k, ser, sl, est)
         info_k = np.einsum("nki,nkj->nij", S, S)
         _record_window(diag, seg, sol, info_k)

@@ -167,11 +167,13 @@ class CalibrationSetup:
         th[self.param_index] = self.prior_mean_vec()
         return th
 
-    def full_theta(self, theta_est: np.ndarray) -> np.ndarray:
-        """(..., k) estimated values -> (..., 10) full theta."""
+    def full_theta(self, theta_est: np.ndarray, index=None) -> np.ndarray:
+        """(..., k) estimated values -> (..., 10) full theta: :meth:`theta_base` with the
+        values put at ``index`` (positions in THETA_NAMES; default :attr:`param_index`, or a
+        subset of it when only the observable parameters are estimated)."""
         theta_est = np.asarray(theta_est, float)
         th = np.broadcast_to(self.theta_base(), (*theta_est.shape[:-1], N_THETA)).copy()
-        th[..., self.param_index] = theta_est
+        th[..., self.param_index if index is None else index] = theta_est
         return th
 
     def resolve_sensors(self, columns) -> tuple:

@@ -47,10 +47,11 @@ from scipy.optimize import brentq
 
 from .atmosphere import t2_from_flight
 from .channels import THETA_NAMES
+from .units import R_PER_K
 from .validation import ENVELOPE, InputError
 
 REFERENCE_DT_K = 15.0
-REFERENCE_W = (0.0, 0.0, 100.0, float(t2_from_flight(0.0, 0.0, REFERENCE_DT_K)) * 1.8)
+REFERENCE_W = (0.0, 0.0, 100.0, float(t2_from_flight(0.0, 0.0, REFERENCE_DT_K)) * R_PER_K)
 
 EGT_MARGIN_DEGR = 90.0
 LIMITS = {"SmFan": 10.0, "SmLPC": 8.0, "SmHPC": 15.0}

@@ -176,15 +176,12 @@ def _channel_option(effect: Effect) -> str:
     return ch
 
 
-@register
-class SensorBias(Effect):
-    name = "sensor_bias"
-    description = "Offset and gain error of one sensor: x <- x (1 + gain) + offset."
+class SensorEffect(Effect):
+    """Base of the effects on one sensor's reading (option ``channel``): the steady state is
+    untouched and only the hooked reading ``sensor:<channel>`` is rewritten by
+    :meth:`reading`; subclasses set ``name``, ``description``, ``params`` and ``reading``."""
+
     options = ("channel",)
-    params = (
-        Param("offset", "channel unit", 0.0, "additive offset", None, None),
-        Param("gain", "-", 0.0, "relative gain error", 0.005, (-0.02, 0.02)),
-    )
     moves = ("<channel>",)
     signature = {"SLS": {"<channel>": +1, "<others>": 0}, "CRZ": {"<channel>": +1,
                                                                    "<others>": 0}}
@@ -192,37 +189,43 @@ class SensorBias(Effect):
     def __init__(self, **values):
         super().__init__(**values)
         self.channel = _channel_option(self)
-        self.name = f"sensor_bias_{self.channel}"
+        self.name = f"{self.registry_name}_{self.channel}"
 
     def apply(self, hook, value, p, ctx):
         if hook != "sensor:" + self.channel:
             return value
+        return self.reading(value, p)
+
+    def reading(self, value, p):
+        """The reading as the faulty sensor reports the true ``value``."""
+        raise TypeError(f"{type(self).__name__} must define reading()")
+
+
+@register
+class SensorBias(SensorEffect):
+    name = "sensor_bias"
+    description = "Offset and gain error of one sensor: x <- x (1 + gain) + offset."
+    params = (
+        Param("offset", "channel unit", 0.0, "additive offset", None, None),
+        Param("gain", "-", 0.0, "relative gain error", 0.005, (-0.02, 0.02)),
+    )
+
+    def reading(self, value, p):
         return value * (1.0 + p["gain"]) + p["offset"]
 
 
 @register
-class SensorDrift(Effect):
+class SensorDrift(SensorEffect):
     name = "sensor_drift"
     description = "A sensor gain that drifts with use: x <- x (1 + rate cycle)."
-    options = ("channel",)
     params = (
         Param("rate", "1/cycle", 0.0, "relative gain change per flight cycle", 1e-4,
               (-5e-4, 5e-4)),
         Param("cycle", "cycle", 0.0, "flight cycle (context: supplied per row)", None, None,
               kind="context"),
     )
-    moves = ("<channel>",)
-    signature = {"SLS": {"<channel>": +1, "<others>": 0}, "CRZ": {"<channel>": +1,
-                                                                   "<others>": 0}}
 
-    def __init__(self, **values):
-        super().__init__(**values)
-        self.channel = _channel_option(self)
-        self.name = f"sensor_drift_{self.channel}"
-
-    def apply(self, hook, value, p, ctx):
-        if hook != "sensor:" + self.channel:
-            return value
+    def reading(self, value, p):
         return value * (1.0 + p["rate"] * p["cycle"])
 
 

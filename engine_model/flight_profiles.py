@@ -87,7 +87,7 @@ from scipy.signal import lfilter
 
 from . import atmosphere
 from .channels import W_NAMES
-from .units import FT_TO_M, KT_TO_MS
+from .units import FT_TO_M, KT_TO_MS, R_PER_K
 
 # --- flight classes ------------------------------------------------------------------------
 DURATION_H = {1: (1.0, 3.0), 2: (3.0, 5.0), 3: (5.0, 8.0)}
@@ -160,7 +160,7 @@ def t2_degR(alt_ft, mach, dT):
     """
     ts = np.maximum(atmosphere.T_STD_K - atmosphere.LAPSE * np.asarray(alt_ft) * FT_TO_M,
                     atmosphere.T_TROPOPAUSE) + dT
-    return np.asarray(atmosphere.total_temperature(ts, np.asarray(mach))) * 1.8
+    return np.asarray(atmosphere.total_temperature(ts, np.asarray(mach))) * R_PER_K
 
 
 # === routes ===============================================================================

@@ -35,7 +35,7 @@ import casadi as ca
 
 from . import atmosphere, components, gas
 from .design import EngineDesign
-from .units import LBF_TO_N, LBM_TO_KG, PSIA_TO_PA, T_STD_K
+from .units import LBF_TO_N, LBM_TO_KG, PSIA_TO_PA, R_PER_K, T_STD_K
 
 UNKNOWN_NAMES = ("beta_fan", "beta_LPC", "beta_HPC", "n_HPC", "T40_rel", "PR_HPT_rel",
                  "PR_LPT_rel")
@@ -67,7 +67,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     beta_fan, beta_lpc, beta_hpc, n_hpc, t40_rel, prh_rel, prl_rel = (x[i] for i in range(7))
 
     # --- free stream and inlet ---
-    T2 = T2_R / 1.8
+    T2 = T2_R / R_PER_K
     P_amb = hook("P_amb", atmosphere.isa_pressure(alt))
     Ts0 = atmosphere.static_temperature(T2, mach)
     Pt0 = P_amb * atmosphere.total_pressure_ratio(Ts0, T2)
@@ -195,7 +195,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
 def imperial_outputs(st, hook=_no_hook):
     """The user-facing outputs in N-CMAPSS units, keyed by channel name (order of
     :data:`channels.OUTPUT_NAMES`)."""
-    R = 1.8
+    R = R_PER_K
     psia = 1.0 / PSIA_TO_PA
     lbm = 1.0 / LBM_TO_KG
     Fn_lbf = st["Fn"] / LBF_TO_N
