@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from typer.core import TyperGroup
 
-from cli.common import CliError, console, echo_json, user_errors
+from cli.common import CliError, console, echo_json, parse_list, parse_units, user_errors
 
 
 class _DefaultRun(TyperGroup):
@@ -32,29 +32,11 @@ app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, add_completion=False,
 _METHODS = "ukf, ekf, mhe or map_cycle"
 
 
-def _list(text: str | None, what: str) -> tuple | None:
-    if text is None:
-        return None
-    items = tuple(s.strip() for s in text.split(",") if s.strip())
-    if not items:
-        raise CliError(f"{what}: empty list")
-    return items
-
-
-def _units(text: str | None):
-    if not text:
-        return None
-    try:
-        return [int(u) for u in text.split(",") if u.strip()]
-    except ValueError:
-        raise CliError(f"--units {text}: expected comma-separated integers") from None
-
-
 def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
     from calibration import CalibrationSetup
     from engine_model.channels import THETA_NAMES
 
-    p, s = _list(params, "--params"), _list(sensors, "--sensors")
+    p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
                 drift_std_per_sqrt_h=drift, noise_scale=noise_scale, prior_std=prior_std,
                 drift_per=drift_per)
@@ -126,7 +108,7 @@ def run(
         warnings.simplefilter("always", UnobservableWarning)
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
         opts = _options(method, window, stride, mode, hessian)
-        unit_list = _units(units)
+        unit_list = parse_units(units)
         if as_json:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
                                   keep_results=False)
@@ -178,12 +160,12 @@ def compare_cmd(
     with user_errors(), warnings.catch_warnings():
         warnings.simplefilter("ignore", UnobservableWarning)  # reported in the table
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
-        names = _list(methods, "--methods")
+        names = parse_list(methods, "--methods")
         for m in names:
             estimator_class(m)
         mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
         opts = {"mhe": mhe, "map_cycle": _given(hessian=hessian)}
-        report = compare(data, names, setup, opts, _units(units), jobs, scheduler)
+        report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler)
     if as_json:
         echo_json(report)
         return

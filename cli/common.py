@@ -1,10 +1,13 @@
-"""Helpers shared by the CLI commands: one-line errors, JSON output, the console."""
+"""Helpers shared by the CLI commands: one-line errors, JSON output, the console, the shared
+engine model, and the parsers of options several commands take (``--units``, lists,
+``--format``)."""
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
+import sys
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
 import typer
@@ -45,6 +48,45 @@ def user_errors(source: object = None) -> Iterator[None]:
         fail(f"{e.filename or source}: {e.strerror or e}")
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         fail(f"{where}cannot read as CSV: {e}")
+
+
+def get_model():
+    """The process-wide engine model (:func:`engine_model.shared_model.default_model`), with a
+    status line on a terminal while it is built."""
+    from engine_model.shared_model import default_model, is_built
+
+    if not is_built() and sys.stderr.isatty():
+        with console(stderr=True).status(
+                "building the engine model (the first run compiles C, later ones load it)"):
+            return default_model()
+    return default_model()
+
+
+def parse_list(text: str | None, option: str) -> tuple[str, ...] | None:
+    """``"a, b,c"`` -> ``("a", "b", "c")``; None when the option was not given."""
+    if text is None:
+        return None
+    items = tuple(s.strip() for s in text.split(",") if s.strip())
+    if not items:
+        raise CliError(f"{option}: empty list")
+    return items
+
+
+def parse_units(text: str | None, option: str = "--units") -> list[int] | None:
+    """``"2,5,10"`` -> ``[2, 5, 10]``; None (all units) when the option was not given."""
+    if not text:
+        return None
+    try:
+        return [int(u) for u in text.split(",") if u.strip()]
+    except ValueError:
+        raise CliError(f"{option} {text}: expected comma-separated integers") from None
+
+
+def check_choice(value: str, option: str, choices: Sequence[str]) -> str:
+    """``value`` if it is one of ``choices`` (e.g. ``--format``), else a one-line error."""
+    if value not in choices:
+        raise CliError(f"{option} {value}: expected {' or '.join(choices)}")
+    return value
 
 
 def plain(v):

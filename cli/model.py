@@ -7,22 +7,21 @@ Three commands, each a few lines over :class:`engine_model.EngineModel`:
                  speed, and where points fail;
 - ``reference``  the model against the C-MAPSS FD002 reference table, channel by channel.
 
-Heavy modules (CasADi, the engine model, pandas) are imported inside the functions so that
-``hyprog --help`` is fast. The engine model is built once per process and kept in
-``_MODEL`` (tests and repeated calls share it).
+The logic is in the library (:mod:`engine_model.envelope`, :mod:`engine_model.reference`);
+the engine model is the process-wide one (:func:`cli.common.get_model`). Heavy modules
+(CasADi, the engine model, pandas) are imported inside the functions so that ``hyprog --help``
+is fast.
 """
 
 from __future__ import annotations
 
 import math
-import sys
-import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, fail, plain, user_errors
+from cli.common import CliError, console, echo_json, fail, get_model, plain, user_errors
 
 app = typer.Typer(
     help="The physics-based engine model F(w, theta) -> (x_s, x_v).",
@@ -30,40 +29,10 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-REFERENCE_CSV = "cmapss-fd002-operating-points.csv"
-# the repository's data_samples/ (editable install or a checkout) first, then the working dir
-_REFERENCE_CANDIDATES = (
-    Path(__file__).resolve().parent.parent / "data_samples" / REFERENCE_CSV,
-    Path("data_samples") / REFERENCE_CSV,
-)
-REFERENCE_W = ("alt_kft", "Mach", "TRA", "T2")
-# channels compared with C-MAPSS; Ps30 and phi are left out on purpose: in the C-MAPSS files
-# they do not follow their stated definitions (see the .md beside the reference table)
-REFERENCE_CHANNELS = (
-    "T24", "T30", "T50", "P2", "P15", "P30", "Nf", "Nc", "epr", "NRf", "NRc", "BPR", "W31", "W32",
-)
-KT_TO_MS = 0.514444  # knot -> m/s
 MAX_FAILURE_ROWS = 20
-
-_MODEL = None
 
 
 # ----------------------------------------------------------------------------- helpers
-def get_model():
-    """The process-wide :class:`engine_model.EngineModel` (built, compiled and cached once)."""
-    global _MODEL
-    if _MODEL is None:
-        from engine_model import EngineModel
-
-        if sys.stderr.isatty():
-            with console(stderr=True).status(
-                    "building the engine model (the first run compiles C, later ones load it)"):
-                _MODEL = EngineModel(compiled=True)
-        else:
-            _MODEL = EngineModel(compiled=True)
-    return _MODEL
-
-
 def _fmt(v, digits: int | None = None) -> str:
     """Numbers for tables: about six significant figures, fixed point."""
     v = plain(v)
@@ -159,27 +128,10 @@ def point(
 ):
     """Every output of the engine model at one operating point."""
     with user_errors():
-        from engine_model import ENVELOPE, OUTPUT_NAMES, THETA_NAMES
-
-        if t2 is not None and dt_isa is not None:
-            raise CliError("give either --t2 or --dt-isa, not both")
-        _check_range("--alt", alt, ENVELOPE.alt_ft, "ft")
-        _check_range("--mach", mach, ENVELOPE.Mach, "")
-        _check_range("--tra", tra, ENVELOPE.TRA, "%")
-        if t2 is not None:
-            _check_range("--t2", t2, ENVELOPE.T2, "degR")
-        if dt_isa is not None:
-            if not math.isfinite(dt_isa):
-                raise CliError(f"--dt-isa {dt_isa}: value must be finite")
-            from engine_model import atmosphere
-
-            t2_isa = float(atmosphere.t2_from_flight(alt, mach, dt_isa)) * 1.8
-            lo, hi = ENVELOPE.T2
-            if not lo <= t2_isa <= hi:
-                raise CliError(f"--dt-isa {dt_isa:g} gives T2 = {t2_isa:.2f} degR, outside the"
-                               f" flight envelope [{lo:g}, {hi:g}] degR")
+        _check_point(alt, mach, tra, t2, dt_isa)
         th = parse_theta(theta)
         s = get_model().point(alt, mach, tra, T2=t2, dT_isa=dt_isa or 0.0, theta=th)
+    from engine_model import OUTPUT_NAMES, THETA_NAMES
 
     converged = bool(s["converged"])
     values = {"alt": alt, "Mach": mach, "TRA": tra, "T2": float(s["T2"])}
@@ -189,77 +141,61 @@ def point(
         echo_json({**values, "converged": converged, "residual_norm": s["residual_norm"],
                     "iterations": int(s["iterations"])})
     else:
-        from rich.table import Table
-
-        from engine_model.channels import UNITS
-
-        con = console()
-        con.print(f"[bold]Engine model at alt {alt:g} ft, Mach {mach:g}, TRA {tra:g} %,"
-                  f" T2 {values['T2']:.2f} degR[/]"
-                  + "".join(f", {k} {v:+g}" for k, v in th.items()))
-        table = Table()
-        for col, kw in (("group", {}), ("channel", {}), ("value", {"justify": "right"}),
-                        ("unit", {})):
-            table.add_column(col, **kw)
-        for g, names in _point_groups(bool(th)):
-            for i, n in enumerate(names):
-                table.add_row(g if i == 0 else "", n, _fmt(values[n], _W_DIGITS.get(n)),
-                              UNITS.get(n, ""), end_section=(i == len(names) - 1))
-        con.print(table)
-        con.print(f"converged: {converged}, max |r| = {float(s['residual_norm']):.1e},"
-                  f" {int(s['iterations'])} Newton iterations")
+        _print_point(values, th, s)
     if not converged:
         fail(f"the steady state did not converge at alt {alt:g} ft, Mach {mach:g},"
-              f" TRA {tra:g} %, T2 {values['T2']:.2f} degR"
-              f" (max |r| = {float(s['residual_norm']):.1e}); outputs are NaN", code=2)
+             f" TRA {tra:g} %, T2 {values['T2']:.2f} degR"
+             f" (max |r| = {float(s['residual_norm']):.1e}); outputs are NaN", code=2)
+
+
+def _check_point(alt: float, mach: float, tra: float, t2: float | None,
+                 dt_isa: float | None) -> None:
+    """The options of ``model point`` inside the flight envelope, named in the message."""
+    from engine_model import ENVELOPE
+
+    if t2 is not None and dt_isa is not None:
+        raise CliError("give either --t2 or --dt-isa, not both")
+    _check_range("--alt", alt, ENVELOPE.alt_ft, "ft")
+    _check_range("--mach", mach, ENVELOPE.Mach, "")
+    _check_range("--tra", tra, ENVELOPE.TRA, "%")
+    if t2 is not None:
+        _check_range("--t2", t2, ENVELOPE.T2, "degR")
+    if dt_isa is not None:
+        if not math.isfinite(dt_isa):
+            raise CliError(f"--dt-isa {dt_isa}: value must be finite")
+        from engine_model import atmosphere
+        from engine_model.units import k_to_r
+
+        t2_isa = float(k_to_r(atmosphere.t2_from_flight(alt, mach, dt_isa)))
+        lo, hi = ENVELOPE.T2
+        if not lo <= t2_isa <= hi:
+            raise CliError(f"--dt-isa {dt_isa:g} gives T2 = {t2_isa:.2f} degR, outside the"
+                           f" flight envelope [{lo:g}, {hi:g}] degR")
+
+
+def _print_point(values: dict, th: dict, s) -> None:
+    from rich.table import Table
+
+    from engine_model.channels import UNITS
+
+    con = console()
+    con.print(f"[bold]Engine model at alt {values['alt']:g} ft, Mach {values['Mach']:g},"
+              f" TRA {values['TRA']:g} %, T2 {values['T2']:.2f} degR[/]"
+              + "".join(f", {k} {v:+g}" for k, v in th.items()))
+    table = Table()
+    for col, kw in (("group", {}), ("channel", {}), ("value", {"justify": "right"}),
+                    ("unit", {})):
+        table.add_column(col, **kw)
+    for g, names in _point_groups(bool(th)):
+        for i, n in enumerate(names):
+            table.add_row(g if i == 0 else "", n, _fmt(values[n], _W_DIGITS.get(n)),
+                          UNITS.get(n, ""), end_section=(i == len(names) - 1))
+    con.print(table)
+    con.print(f"converged: {bool(s['converged'])}, max |r| = {float(s['residual_norm']):.1e},"
+              f" {int(s['iterations'])} Newton iterations")
 
 
 # ----------------------------------------------------------------------------- envelope
-def random_envelope(n: int, seed: int = 0):
-    """``n`` random operating points of the civil envelope, as a DataFrame with the columns
-    alt, Mach, TRA, T2 [degR] and the ten theta columns.
-
-    alt uniform 0-42,000 ft; Mach uniform from 0 to min(0.85, the Mach of 350 kt calibrated
-    airspeed at that altitude); TRA 20-100 %; ISA day offset +-15 K; theta uniform in
-    [-0.05, 0]. The draws of :func:`engine_model.sampling.random_envelope`.
-    """
-    import pandas as pd
-
-    from engine_model import THETA_NAMES
-    from engine_model.sampling import random_envelope as sample
-
-    w, theta, dT = sample(n, seed, return_day_offset=True)
-    alt, mach, tra, T2 = w.T
-    df = pd.DataFrame({"alt": alt, "Mach": mach, "TRA": tra, "T2": T2})
-    df[list(THETA_NAMES)] = theta
-    df["dT_isa"] = dT
-    return df
-
-
-def envelope_report(model, n: int, seed: int = 0) -> dict:
-    """Solve ``n`` random envelope points; convergence rate, speed and the failing points."""
-    from engine_model import THETA_NAMES, W_NAMES
-
-    pts = random_envelope(n, seed)
-    t0 = time.perf_counter()
-    out = model.evaluate(pts[list(W_NAMES) + list(THETA_NAMES)])
-    elapsed = time.perf_counter() - t0
-    ok = out["converged"].to_numpy(bool)
-    bad = pts.loc[~ok].copy()
-    bad["residual_norm"] = out.loc[~ok, "residual_norm"]
-    failures = [{"row": int(i), **row} for i, row in zip(bad.index, bad.to_dict("records"),
-                                                          strict=True)]
-    return {
-        "n_points": n,
-        "seed": seed,
-        "n_failed": int((~ok).sum()),
-        "convergence_rate": float(ok.mean()),
-        "seconds": elapsed,
-        "points_per_second": n / elapsed if elapsed > 0 else None,
-        "failures": failures,
-    }
-
-
 @app.command()
 def envelope(
     n: Annotated[int, typer.Option("--n", min=1, help="Number of random points.")] = 2000,
@@ -271,13 +207,20 @@ def envelope(
     alt 0-42,000 ft, Mach up to min(0.85, 350 kt CAS), TRA 20-100 %, ISA +-15 K,
     theta uniform in [-0.05, 0]. A report: exits 0 even when points fail.
     """
+    from engine_model.envelope import envelope_report
+
     with user_errors():
         rep = envelope_report(get_model(), n, seed)
     if as_json:
         echo_json(rep)
-        return
+    else:
+        _print_envelope(rep)
+
+
+def _print_envelope(rep: dict) -> None:
     from rich.table import Table
 
+    n, seed = rep["n_points"], rep["seed"]
     con = console()
     con.print(f"[bold]Envelope sweep: {n} random points, seed {seed}[/]")
     summary = Table(show_header=False)
@@ -308,70 +251,6 @@ def envelope(
 
 
 # ----------------------------------------------------------------------------- reference
-def default_reference() -> Path:
-    for p in _REFERENCE_CANDIDATES:
-        if p.is_file():
-            return p
-    return _REFERENCE_CANDIDATES[0]
-
-
-def load_reference(path: Path):
-    """Read the reference table: numeric columns alt_kft, Mach, TRA, T2 and any of
-    :data:`REFERENCE_CHANNELS`. Rows are numbered from 1 (header excluded) in messages."""
-    import pandas as pd
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(2, "no such file", str(path))
-    df = pd.read_csv(path)
-    df.columns = [str(c).strip() for c in df.columns]
-    missing = [c for c in REFERENCE_W if c not in df.columns]
-    if missing:
-        raise CliError(f"missing column(s) {', '.join(missing)}; expected"
-                       f" {', '.join(REFERENCE_W)} and channels such as T30, Nc"
-                       f" (got {', '.join(df.columns)})")
-    channels = [c for c in REFERENCE_CHANNELS if c in df.columns]
-    if not channels:
-        raise CliError(f"no channel to compare; expected some of {', '.join(REFERENCE_CHANNELS)}")
-    if df.empty:
-        raise CliError("the table has no rows")
-    df.index = pd.RangeIndex(1, len(df) + 1)
-    for c in list(REFERENCE_W) + channels:
-        num = pd.to_numeric(df[c], errors="coerce")
-        bad = num.isna() & df[c].notna()
-        if bad.any():
-            i = bad.idxmax()
-            raise CliError(f"row {i}, column {c}: {df.at[i, c]!r} is not a number")
-        if c in REFERENCE_W and num.isna().any():
-            raise CliError(f"row {num.isna().idxmax()}, column {c}: value is missing")
-        df[c] = num.astype(float)
-    return df[list(REFERENCE_W) + channels]
-
-
-def compare_reference(model, ref) -> list[dict]:
-    """The model at every row of the reference table: per channel the reference value, the
-    model value and the error ``100 (model - reference) / reference`` [%]."""
-    import pandas as pd
-
-    w = pd.DataFrame({"alt": ref["alt_kft"] * 1000.0, "Mach": ref["Mach"], "TRA": ref["TRA"],
-                      "T2": ref["T2"]}, index=ref.index)
-    out = model.evaluate(w)
-    channels = [c for c in REFERENCE_CHANNELS if c in ref.columns]
-    records = []
-    for i in ref.index:
-        rec = {"row": int(i), **{c: float(ref.at[i, c]) for c in REFERENCE_W},
-               "converged": bool(out.at[i, "converged"])}
-        for c in channels:
-            r, m = float(ref.at[i, c]), float(out.at[i, c])
-            err = 100.0 * (m - r) / r if math.isfinite(r) and r != 0.0 else float("nan")
-            rec[f"{c}_ref"], rec[f"{c}_model"], rec[f"{c}_err_pct"] = r, m, err
-        errs = [abs(rec[f"{c}_err_pct"]) for c in channels
-                if math.isfinite(rec[f"{c}_err_pct"])]
-        rec["max_abs_err_pct"] = max(errs) if errs else float("nan")
-        records.append(rec)
-    return records
-
-
 @app.command()
 def reference(
     csv: Annotated[Path | None, typer.Argument(
@@ -381,14 +260,16 @@ def reference(
 ):
     """The model against C-MAPSS FD002 early-life means at its six operating points.
 
-    Each row runs at alt_kft * 1000 ft, Mach, TRA and the table's T2; theta = 0.
+    Each row runs at alt_kft (in thousands of ft), Mach, TRA and the table's T2; theta = 0.
     Ps30 and phi are not compared: in C-MAPSS they break their own definitions.
     """
-    path = csv if csv is not None else default_reference()
-    with user_errors(path):
-        ref = load_reference(path)
-        records = compare_reference(get_model(), ref)
-    channels = [c for c in REFERENCE_CHANNELS if c in ref.columns]
+    from engine_model import reference as lib
+
+    path = csv if csv is not None else lib.default_reference_path()
+    with user_errors():  # the library's messages name the file
+        ref = lib.load_reference(path)
+        records = lib.compare_reference(get_model(), ref)
+    channels = lib.compared_channels(ref)
     if as_json:
         echo_json(records)
     else:
@@ -403,12 +284,13 @@ def _print_reference(records, channels, path):
     from rich.table import Table
 
     from engine_model.channels import UNITS
+    from engine_model.units import FT_PER_KFT
 
     con = console()
     con.print("[bold]hyprog engine model versus C-MAPSS[/]")
     con.print(f"reference: {path}", soft_wrap=True)
     for rec in records:
-        con.print(f"\n[bold]row {rec['row']}[/]: alt {rec['alt_kft'] * 1000:g} ft,"
+        con.print(f"\n[bold]row {rec['row']}[/]: alt {rec['alt_kft'] * FT_PER_KFT:g} ft,"
                   f" Mach {rec['Mach']:g}, TRA {rec['TRA']:g} %, T2 {rec['T2']:g} degR"
                   + ("" if rec["converged"] else " [red](not converged)[/]"))
         t = Table()

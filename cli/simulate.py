@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, user_errors
+from cli.common import check_choice, console, echo_json, parse_units, user_errors
 
 
 def simulate(
@@ -31,12 +31,8 @@ def simulate(
     from engine_model.effects import parse_effect_spec
 
     with user_errors():
-        if fmt not in ("parquet", "h5"):
-            raise CliError(f"--format {fmt}: expected parquet or h5")
-        try:
-            unit_list = ([int(u) for u in units.split(",") if u.strip()] if units else None)
-        except ValueError:
-            raise CliError(f"--units {units}: expected comma-separated integers") from None
+        check_choice(fmt, "--format", ("parquet", "h5"))
+        unit_list = parse_units(units)
         effects = [parse_effect_spec(e) for e in (effect or [])]
         preset_obj = fleet.get_preset(preset)
         if rate is not None:

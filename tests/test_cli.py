@@ -1,6 +1,7 @@
 """The ``hyprog`` command line: numbers through the CLI, and errors a user can act on.
 
-The engine model is built once for the module (``cli.model`` keeps it in ``_MODEL``).
+The engine model is built once for the module (the process-wide one of
+:func:`cli.common.get_model`).
 """
 
 import inspect
@@ -11,8 +12,11 @@ import sys
 import pytest
 from typer.testing import CliRunner
 
-from cli import model as cli_model
+from cli.common import get_model
 from cli.main import app
+from engine_model.reference import default_reference_path
+from engine_model.sampling import envelope_points
+from engine_model.units import T_STD_K, T_STD_R, k_to_r
 
 SLS_T30_R = 1586.4  # C-MAPSS FD002, SLS ISA TRA 100 (the design point)
 SLS_CHANNELS = ("T24", "T30", "T50", "P15", "P30", "Nf", "Nc", "BPR", "W31", "W32", "epr")
@@ -20,7 +24,7 @@ SLS_CHANNELS = ("T24", "T30", "T50", "P15", "P30", "Nf", "Nc", "BPR", "W31", "W3
 
 @pytest.fixture(scope="module")
 def runner():
-    cli_model.get_model()  # build (compile or load) the engine model once for the module
+    get_model()  # build (compile or load) the engine model once for the module
     if "mix_stderr" in inspect.signature(CliRunner.__init__).parameters:
         return CliRunner(mix_stderr=False)  # click < 8.2: keep stderr apart
     return CliRunner()  # click >= 8.2: stdout and stderr are always apart
@@ -58,7 +62,7 @@ def test_point_json_at_sls_matches_the_design_point(runner):
     assert d["converged"] is True
     assert d["residual_norm"] < 1e-8
     assert d["T30"] == pytest.approx(SLS_T30_R, rel=1e-3)
-    assert d["T2"] == pytest.approx(518.67, abs=0.01)  # ISA sea level, static
+    assert d["T2"] == pytest.approx(T_STD_R, abs=0.01)  # ISA sea level, static
     # every output channel is there, numeric
     from engine_model import OUTPUT_NAMES
 
@@ -69,7 +73,7 @@ def test_point_hot_day_raises_t2_by_dt_isa(runner):
     r = run(runner, "model", "point", "--alt", "0", "--mach", "0", "--tra", "100",
             "--dt-isa", "10", "--json")
     assert r.exit_code == 0, r.stderr
-    assert json.loads(r.stdout)["T2"] == pytest.approx(518.67 + 18.0, abs=0.01)
+    assert json.loads(r.stdout)["T2"] == pytest.approx(k_to_r(T_STD_K + 10.0), abs=0.01)
 
 
 def test_point_hpt_efficiency_loss_raises_t48(runner):
@@ -136,7 +140,7 @@ def test_reference_missing_csv_names_the_path(runner, tmp_path):
 
 
 def test_reference_bad_csv_names_row_and_column(runner, tmp_path):
-    good = cli_model.default_reference().read_text().splitlines()
+    good = default_reference_path().read_text().splitlines()
     header, first = good[0], good[1]
     no_mach = tmp_path / "no-mach.csv"
     no_mach.write_text(header.replace("Mach,", "Speed,") + "\n" + first + "\n")
@@ -171,7 +175,7 @@ def test_envelope_json_all_points_converge(runner):
 
 
 def test_envelope_points_stay_inside_the_civil_envelope():
-    pts = cli_model.random_envelope(500, seed=3)
+    pts = envelope_points(500, seed=3)
     assert pts["alt"].between(0, 42000).all()
     assert (pts["Mach"] <= 0.85).all() and (pts["Mach"] >= 0).all()
     assert pts["TRA"].between(20, 100).all()
