@@ -65,9 +65,6 @@ from .schema import (
 )
 from .summary import summarize
 
-# the pre-package private name, still imported by calibration.fleet; use hyprog_version
-_hyprog_version = hyprog_version
-
 __all__ = [
     "BOOKKEEPING", "REQUIRED_COLUMNS", "INT_KEYS", "INT_OPTIONAL", "SPLITS", "META_KEY",
     "SAMPLE_RATE_KEY", "NCMAPSS_SOURCE", "DEFAULT_H5_RATE_HZ", "PARQUET_PART",
