@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from cli import calibrate, data, effects, model, simulate
+from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
 
 app = typer.Typer(
     name="hyprog",
@@ -18,6 +18,10 @@ app.add_typer(data.app, name="data")
 app.add_typer(calibrate.app, name="calibrate")
 app.command("simulate")(simulate.simulate)
 app.command("effects")(effects.effects)
+app.command("train")(train.train)
+app.command("evaluate")(evaluate.evaluate)
+app.command("predict")(predict.predict)
+app.add_typer(experiment.app, name="experiment")
 
 
 def _version(value: bool):

@@ -78,11 +78,16 @@ def check_prediction_frame(pred: pd.DataFrame) -> None:
 
 
 def per_cycle(pred: pd.DataFrame) -> pd.DataFrame:
-    """One row per (unit, cycle): true ``RUL``, ``mean`` / ``min`` / ``max`` of the predictions,
-    ``n`` samples, and the mean ``lower`` / ``upper`` of the interval when there is one."""
-    check_prediction_frame(pred)
-    agg = {"RUL": ("RUL", "mean"), "mean": ("RUL_pred", "mean"), "min": ("RUL_pred", "min"),
+    """One row per (unit, cycle): true ``RUL`` (when the frame has it), ``mean`` / ``min`` /
+    ``max`` of the predictions, ``n`` samples, and the mean ``lower`` / ``upper`` of the
+    interval when there is one."""
+    missing = [c for c in ("unit", "cycle", "RUL_pred") if c not in pred.columns]
+    if missing:
+        raise InputError(f"predictions: missing column(s) {', '.join(missing)}")
+    agg = {"mean": ("RUL_pred", "mean"), "min": ("RUL_pred", "min"),
            "max": ("RUL_pred", "max"), "n": ("RUL_pred", "size")}
+    if "RUL" in pred.columns:
+        agg = {"RUL": ("RUL", "mean"), **agg}
     if _has_interval(pred):
         agg.update(lower=("RUL_lower", "mean"), upper=("RUL_upper", "mean"))
     return pred.groupby(["unit", "cycle"], sort=True).agg(**agg).reset_index()

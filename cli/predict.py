@@ -1,0 +1,51 @@
+"""``hyprog predict MODEL_DIR DATA --out FILE``: RUL per sample and per cycle."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import console, echo_json, parse_units, user_errors
+
+
+def per_cycle_path(out: Path) -> Path:
+    """``preds.csv`` -> ``preds.per_cycle.csv`` (same format as ``out``)."""
+    return out.with_name(f"{out.stem}.per_cycle{out.suffix}")
+
+
+def predict(
+    model_dir: Annotated[Path, typer.Argument(help="Model directory written by hyprog train.")],
+    data: Annotated[Path, typer.Argument(help="Table with the model's input columns.")],
+    out: Annotated[Path, typer.Option(
+        "--out", help="Per-sample predictions (.csv, else parquet); the per-cycle table goes "
+        "to <stem>.per_cycle<suffix> beside it.")],
+    units: Annotated[str | None, typer.Option("--units", help="Units to predict [all].")
+                     ] = None,
+    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
+    as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
+):
+    """Predict the RUL of every sample that ends a full window (columns RUL_pred, RUL_std for
+    an ensemble, RUL_lower / RUL_upper with a conformal interval) and its per-cycle mean,
+    min and max."""
+    from cli.evaluate import load_model_warned
+    from engine_model.datasets import read_dataset
+    from prognostics.metrics import per_cycle
+    from prognostics.outputs import write_table
+
+    with user_errors(data):
+        rul = load_model_warned(model_dir)
+        df, _ = read_dataset(data)
+        pred = rul.predict(df, parse_units(units), device, source=str(data))
+        pc = per_cycle(pred)
+        write_table(out, pred)
+        write_table(per_cycle_path(out), pc)
+    rep = {"out": str(out), "per_cycle": str(per_cycle_path(out)), "samples": len(pred),
+           "cycles": len(pc), "units": sorted(int(u) for u in pred["unit"].unique()),
+           "interval": rul.conformal is not None}
+    if as_json:
+        echo_json(rep)
+        return
+    console().print(f"wrote {out} ({rep['samples']:,} samples) and {rep['per_cycle']} "
+                    f"({rep['cycles']} cycles) for unit(s) {', '.join(map(str, rep['units']))}")

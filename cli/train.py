@@ -1,0 +1,90 @@
+"""``hyprog train FEATURES --model cnn --inputs hybrid --out MODEL_DIR``: train a RUL model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import CliError, console, echo_json, parse_units, user_errors
+
+INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta), groups joined "
+               "by '+' (w, xs, xs_hat, xv, xv_hat, theta_hat, theta), explicit columns "
+               "(alt,Mach,...), or a set plus columns (hybrid+Ps30,phi).")
+
+
+def train(
+    features: Annotated[Path, typer.Argument(help="Feature table (parquet from hyprog "
+                                             "calibrate, or any table with its columns).")],
+    out: Annotated[Path, typer.Option("--out", help="Model directory to write.")],
+    model: Annotated[str, typer.Option("--model", help="fnn or cnn.")] = "cnn",
+    inputs: Annotated[str, typer.Option("--inputs", help=INPUTS_HELP)] = "hybrid",
+    units: Annotated[str | None, typer.Option(
+        "--units", help="Development units to train on [the metadata's dev_units].")] = None,
+    window: Annotated[int | None, typer.Option(
+        "--window", help="CNN window length [50]; the FNN takes one time step.")] = None,
+    stride: Annotated[int, typer.Option("--stride", help="Window step.")] = 1,
+    max_rul: Annotated[float | None, typer.Option(
+        "--max-rul", help="Cap the RUL target (piecewise linear) [no cap].")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the first network.")] = 0,
+    ensemble: Annotated[int, typer.Option(
+        "--ensemble", help="Networks to train, seeds seed..seed+N-1 (mean and spread).")] = 1,
+    epochs: Annotated[int | None, typer.Option(
+        "--epochs", help="Maximum epochs [60 FNN, 30 CNN].")] = None,
+    val_units: Annotated[str | None, typer.Option(
+        "--val-units", help="Validate on these whole units instead of 10 % of the flights.")
+    ] = None,
+    conformal_units: Annotated[str | None, typer.Option(
+        "--conformal-units", help="Development units held out to calibrate a conformal "
+        "interval.")] = None,
+    alpha: Annotated[float, typer.Option("--alpha", help="Interval miscoverage (0.1: 90 %).")
+                     ] = 0.1,
+    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
+    quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
+):
+    """Train the paper's FNN or 1-D CNN on a feature table and save it (weights, scaler,
+    inputs, interval) to MODEL_DIR."""
+    from engine_model.datasets import read_dataset
+    from prognostics.checkpoint import save_model
+    from prognostics.training import TrainConfig, fit
+
+    with user_errors(features):
+        if ensemble < 1:
+            raise CliError(f"--ensemble {ensemble}: expected >= 1")
+        vu = parse_units(val_units, "--val-units")
+        cu = parse_units(conformal_units, "--conformal-units") or []
+        cfg = TrainConfig(model=model, inputs=inputs, window=window, stride=stride,
+                          max_rul=max_rul, seed=seed, epochs=epochs,
+                          validation="units" if vu else "flights",
+                          val_units=tuple(vu) if vu else None,
+                          units=tuple(parse_units(units) or []) or None,
+                          conformal_units=tuple(cu), alpha=alpha, device=device)
+        df, meta = read_dataset(features)
+        rul = fit(df, meta, cfg, seeds=range(seed, seed + ensemble),
+                  quiet=quiet or as_json, source=str(features))
+        save_model(rul, out)
+    rep = {"out": str(out), "model": rul.config.model, "inputs": rul.config.inputs,
+           "columns": list(rul.columns), "window": rul.window, "max_rul": rul.config.max_rul,
+           "parameters": rul.members[0].parameters,
+           "members": [{"seed": m.seed, "best_epoch": m.best_epoch, "epochs_run": len(m.history),
+                        "val_loss": m.history[m.best_epoch - 1]["val_loss"],
+                        "train_loss": m.history[m.best_epoch - 1]["train_loss"]}
+                       for m in rul.members],
+           "conformal": None if rul.conformal is None else rul.conformal.to_dict()}
+    if as_json:
+        echo_json(rep)
+        return
+    c = console()
+    c.print(f"{rep['model'].upper()} on {len(rep['columns'])} inputs ({rep['inputs']}), window "
+            f"{rep['window']}: {rep['parameters']:,} trainable parameters")
+    for m in rep["members"]:
+        val = "-" if m["val_loss"] is None else f"{m['val_loss']:.4g}"
+        c.print(f"seed {m['seed']}: best epoch {m['best_epoch']} of {m['epochs_run']}, "
+                f"train MSE {m['train_loss']:.4g}, validation MSE {val}")
+    if rul.conformal is not None:
+        c.print(f"conformal interval ±{rul.conformal.quantile:.3g} cycles at level "
+                f"{1 - rul.conformal.alpha:.2f} from {rul.conformal.n_scores:,} samples of "
+                f"unit(s) {', '.join(map(str, rul.conformal.units))}")
+    c.print(f"wrote {out}")
