@@ -24,21 +24,11 @@ from collections.abc import Callable, Sequence
 import pandas as pd
 
 from engine_model.interface import SteadyStateModel
+from engine_model.shared_model import default_model
 from engine_model.validation import InputError
 
 from .result import CalibrationResult
 from .setup import CalibrationSetup
-
-_MODELS: dict = {}
-
-
-def default_model(compiled: bool = True):
-    """One :class:`engine_model.EngineModel` per process (no optional effects)."""
-    if compiled not in _MODELS:
-        from engine_model import EngineModel
-
-        _MODELS[compiled] = EngineModel(compiled=compiled)
-    return _MODELS[compiled]
 
 
 class Estimator(ABC):

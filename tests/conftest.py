@@ -47,8 +47,11 @@ def reference_csv():
 
 @pytest.fixture(scope="session")
 def model():
-    """The compiled engine model (default design, no effects)."""
-    return EngineModel()
+    """The compiled engine model (default design, no effects): the process-wide one that the
+    library's own callers share (:func:`engine_model.shared_model.default_model`)."""
+    from engine_model.shared_model import default_model
+
+    return default_model()
 
 
 @pytest.fixture(scope="session")
