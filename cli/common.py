@@ -12,6 +12,9 @@ from contextlib import contextmanager
 
 import typer
 
+EXIT_FAILED = 1  # a computation failed (no convergence)
+EXIT_USAGE = 2  # bad input or usage (cli.main docstring: the exit-code rule)
+
 
 class CliError(Exception):
     """A mistake in the user's input, reported as one line (no traceback)."""
@@ -23,14 +26,27 @@ def console(stderr: bool = False):
     return Console(stderr=stderr, highlight=False)
 
 
-def fail(message: str, code: int = 1):
-    typer.echo("error: " + " ".join(str(message).split()), err=True)
+def error_line(message: str) -> str:
+    """``error: <message>`` on one line (whitespace and newlines collapsed)."""
+    return "error: " + " ".join(str(message).split())
+
+
+def warn(message: str) -> None:
+    """One ``warning: ...`` line on stderr (text mode; ``--json`` reports carry warnings)."""
+    typer.echo("warning: " + " ".join(str(message).split()), err=True)
+
+
+def fail(message: str, code: int = EXIT_USAGE):
+    """Print one ``error:`` line and exit with ``code``: :data:`EXIT_USAGE` (2) for bad
+    input, :data:`EXIT_FAILED` (1) for a computation that failed."""
+    typer.echo(error_line(message), err=True)
     raise typer.Exit(code)
 
 
 @contextmanager
 def user_errors(source: object = None) -> Iterator[None]:
-    """Turn the errors a user can act on into one line on stderr and exit code 1."""
+    """Turn the errors a user can act on into one line on stderr and exit code 2 (bad
+    input; :mod:`cli.main` states the rule)."""
     import pandas as pd
 
     from engine_model import InputError

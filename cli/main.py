@@ -1,13 +1,72 @@
-"""The ``hyprog`` console script: the root typer app and its sub-apps."""
+"""The ``hyprog`` console script: the root typer app and its sub-apps.
+
+Exit codes (one rule for every command, README "Bad input")
+-----------------------------------------------------------
+- 0: done.
+- 1: a computation failed (e.g. the steady state did not converge); the message says where.
+- 2: bad input or usage: a file, column, row, unit or option value the user can fix, and
+  click's own usage errors (unknown option, missing argument, a value of the wrong type).
+  Exactly one ``error: ...`` line on stderr, no traceback, no box.
+- 130: interrupted (Ctrl-C).
+
+The root group (:class:`HyprogGroup`) runs click in non-standalone mode and prints click's
+usage errors as that one line; :func:`cli.common.user_errors` does the same for the library's
+:class:`engine_model.InputError`.
+"""
 
 from __future__ import annotations
 
+import sys
+
 import typer
+from typer.core import TyperGroup
 
 from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
+from cli.common import EXIT_USAGE, error_line
+
+
+def _click_class(name: str) -> type:
+    """A click exception class, found through typer's public ``BadParameter`` / ``Abort`` (typer
+    0.2x vendors its own click, so ``import click`` would name other classes)."""
+    for c in (*typer.BadParameter.__mro__, *typer.Abort.__mro__):
+        if c.__name__ == name:
+            return c
+    raise ImportError(f"typer has no click {name}")  # pragma: no cover
+
+
+ClickException = _click_class("ClickException")
+UsageError = _click_class("UsageError")
+Abort = typer.Abort
+
+
+class HyprogGroup(TyperGroup):
+    """The root command: click's usage errors become one ``error:`` line and exit 2."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):
+        try:
+            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                              standalone_mode=False, **extra)
+        except ClickException as e:
+            if type(e).__name__ == "NoArgsIsHelpError":  # a bare group: its help
+                e.show()
+                rv = EXIT_USAGE
+            else:
+                ctx = getattr(e, "ctx", None)
+                where = f"{ctx.command_path}: " if ctx is not None else ""
+                typer.echo(error_line(where + e.format_message()), err=True)
+                rv = EXIT_USAGE
+        except Abort:
+            typer.echo("error: aborted", err=True)
+            rv = 130
+        if not standalone_mode:
+            return rv
+        sys.exit(rv if isinstance(rv, int) else 0)
+
 
 app = typer.Typer(
     name="hyprog",
+    cls=HyprogGroup,
     help="Hybrid physics + deep-learning prognostics for turbofan engine fleets.",
     no_args_is_help=True,
     add_completion=False,

@@ -21,7 +21,16 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, fail, get_model, plain, user_errors
+from cli.common import (
+    EXIT_FAILED,
+    CliError,
+    console,
+    echo_json,
+    fail,
+    get_model,
+    plain,
+    user_errors,
+)
 
 app = typer.Typer(
     help="The physics-based engine model F(w, theta) -> (x_s, x_v).",
@@ -145,7 +154,7 @@ def point(
     if not converged:
         fail(f"the steady state did not converge at alt {alt:g} ft, Mach {mach:g},"
              f" TRA {tra:g} %, T2 {values['T2']:.2f} degR"
-             f" (max |r| = {float(s['residual_norm']):.1e}); outputs are NaN", code=2)
+             f" (max |r| = {float(s['residual_norm']):.1e}); outputs are NaN", code=EXIT_FAILED)
 
 
 def _check_point(alt: float, mach: float, tra: float, t2: float | None,
@@ -277,7 +286,7 @@ def reference(
     bad = [r for r in records if not r["converged"]]
     if bad:
         fail(f"{path}: the steady state did not converge at row(s)"
-              f" {', '.join(str(r['row']) for r in bad)}", code=2)
+              f" {', '.join(str(r['row']) for r in bad)}", code=EXIT_FAILED)
 
 
 def _print_reference(records, channels, path):

@@ -203,7 +203,7 @@ def test_cli_calibrate_sensor_subset_reports_unobservable(small, tmp_path):
     # nothing observable: a one-line error, nothing written
     r = runner.invoke(app, ["calibrate", str(path), "--method", "ekf", "--units", "1",
                             "--sensors", "Nf,P2", "--out", str(tmp_path / "g")])
-    assert r.exit_code == 1 and "cannot be observed" in r.output
+    assert r.exit_code == 2 and "cannot be observed" in r.output
     assert not (tmp_path / "g").exists()
 
 
@@ -228,7 +228,7 @@ def test_cli_bad_input_is_one_line(small, tmp_path, args, fragment):
     path, _ = small
     out = tmp_path / "f"
     r = runner.invoke(app, ["calibrate", str(path), "--out", str(out), *args])
-    assert r.exit_code == 1
+    assert r.exit_code == 2
     assert r.output.startswith("error:") and fragment in r.output
     assert "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1
     assert not out.exists()
@@ -236,4 +236,4 @@ def test_cli_bad_input_is_one_line(small, tmp_path, args, fragment):
 
 def test_cli_missing_data_file(tmp_path):
     r = runner.invoke(app, ["calibrate", str(tmp_path / "nope"), "--out", str(tmp_path / "f")])
-    assert r.exit_code == 1 and "no such file" in r.output
+    assert r.exit_code == 2 and "no such file" in r.output

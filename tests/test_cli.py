@@ -34,7 +34,7 @@ def run(runner, *args):
     return runner.invoke(app, list(args))
 
 
-def assert_user_error(result, *fragments, code=1):
+def assert_user_error(result, *fragments, code=2):
     """Non-zero exit, one 'error: ...' line on stderr naming the culprit, no traceback."""
     assert result.exit_code == code, (result.exit_code, result.stdout, result.stderr)
     assert isinstance(result.exception, SystemExit), repr(result.exception)

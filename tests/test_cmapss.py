@@ -179,7 +179,7 @@ def test_import_writes_a_parquet_dataset_that_reads_back(runner, files, tmp_path
 
 
 def assert_user_error(result, *fragments):
-    assert result.exit_code == 1, (result.exit_code, result.stdout, result.stderr)
+    assert result.exit_code == 2, (result.exit_code, result.stdout, result.stderr)
     err = result.stderr
     assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
     for f in fragments:

@@ -216,7 +216,7 @@ def test_cli_simulate_info_effects(tmp_path):
 def test_cli_simulate_bad_input(tmp_path, args, msg):
     out = tmp_path / "x"
     r = runner.invoke(app, ["simulate", "--out", str(out), *args])
-    assert r.exit_code == 1
+    assert r.exit_code == 2
     assert r.stderr.startswith("error: ") and msg in r.stderr and len(r.stderr.splitlines()) == 1
     assert not out.exists()
 
