@@ -61,7 +61,7 @@ def evaluate(
         e = last["units"][u]
         t.add_row(str(u), f"{m['n']:,}", f"{m['rmse']:.3f}", f"{m['score']:.4g}",
                   str(e["cycle"]), f"{e['RUL']:.3g}", f"{e['RUL_pred']:.3g}",
-                  f"{abs(e['error']):.3f}", f"{hz['units'][u]:.3g}", *cells(m))
+                  f"{abs(e['delta']):.3f}", f"{hz['units'][u]:.3g}", *cells(m))
     o = s["overall"]
     t.add_row("all", f"{o['n']:,}", f"{o['rmse']:.3f}", f"{o['score']:.4g}", "", "", "",
               f"{last['overall']['rmse']:.3f}", f"{hz['mean']:.3g}", *cells(o))

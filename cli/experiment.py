@@ -46,6 +46,7 @@ def paper(
     no_baseline: Annotated[bool, typer.Option(
         "--no-baseline", help="Skip the physics-only baseline (needs the engine model).")
     ] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No line per run.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
 ):
     """Main table (FNN/CNN, data-driven vs hybrid), horizon, ablations I, III, IV, conformal
@@ -67,7 +68,8 @@ def paper(
             parts=tuple(parts), small_units=tuple(parse_units(small_units, "--small-units")),
             epochs=epochs, device=device, alpha=alpha, baseline=not no_baseline)
         df, meta = read_dataset(data)
-        log = (lambda s: None) if as_json else (lambda s: console(stderr=True).print(s))
+        log = (lambda s: None) if as_json or quiet else \
+            (lambda s: console(stderr=True).print(s))
         res = run_experiment(df, meta, out, cfg, log=log, source=str(data))
     if as_json:
         echo_json(res)

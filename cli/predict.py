@@ -40,7 +40,11 @@ def predict(
         pred = rul.predict(df, parse_units(units), device, source=str(data))
         pc = per_cycle(pred)
         write_table(out, pred)
-        write_table(per_cycle_path(out), pc)
+        try:
+            write_table(per_cycle_path(out), pc)
+        except BaseException:
+            out.unlink(missing_ok=True)  # both files or neither
+            raise
     rep = {"out": str(out), "per_cycle": str(per_cycle_path(out)), "samples": len(pred),
            "cycles": len(pc), "units": sorted(int(u) for u in pred["unit"].unique()),
            "interval": rul.conformal is not None}

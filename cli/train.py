@@ -47,12 +47,13 @@ def train(
     """Train the paper's FNN or 1-D CNN on a feature table and save it (weights, scaler,
     inputs, interval) to MODEL_DIR."""
     from engine_model.datasets import read_dataset
-    from prognostics.checkpoint import save_model
+    from prognostics.checkpoint import check_model_target, save_model
     from prognostics.training import TrainConfig, fit
 
     with user_errors(features):
         if ensemble < 1:
             raise CliError(f"--ensemble {ensemble}: expected >= 1")
+        check_model_target(out)  # before hours of training, not after
         vu = parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
         cfg = TrainConfig(model=model, inputs=inputs, window=window, stride=stride,

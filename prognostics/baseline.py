@@ -151,8 +151,9 @@ def baseline_predictions(df: pd.DataFrame, hi_fn: Callable[[np.ndarray], np.ndar
 
 
 def engine_health_index():
-    """``HealthIndex`` of the default engine model (builds or loads the compiled model)."""
-    from engine_model import EngineModel
+    """``HealthIndex`` of the process-wide default engine model
+    (:func:`engine_model.shared_model.default_model`: built, or loaded from the C cache, once)."""
     from engine_model.degradation import HealthIndex
+    from engine_model.shared_model import default_model
 
-    return HealthIndex(EngineModel())
+    return HealthIndex(default_model())

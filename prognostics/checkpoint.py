@@ -45,6 +45,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
+from engine_model.datasets import hyprog_version
 from engine_model.validation import InputError
 
 from .conformal import SplitConformal
@@ -54,15 +55,6 @@ from .training import Member, TrainConfig
 FORMAT = "hyprog-prognostics"
 FORMAT_VERSION = 1
 MANIFEST = "model.json"
-
-
-def hyprog_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("hyprog")
-    except PackageNotFoundError:
-        return "0+unknown"
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -99,11 +91,21 @@ def _replaceable(path: Path) -> bool:
     return (path / MANIFEST).is_file() or (path.is_dir() and not any(path.iterdir()))
 
 
-def save_model(model, path: str | os.PathLike) -> Path:
-    """Write ``model`` to the directory ``path`` atomically (module docstring)."""
+def check_model_target(path: str | os.PathLike) -> Path:
+    """``path`` may receive a model directory: it does not exist, or it is a hyprog model
+    directory or an empty directory (which :func:`save_model` replaces). Call it before a long
+    training so that a bad ``--out`` fails first, not after hours."""
     target = Path(path)
     if target.exists() and (not target.is_dir() or not _replaceable(target)):
         raise InputError(f"{target}: exists and is not a hyprog model directory; not replacing")
+    if target.parent.exists() and not target.parent.is_dir():
+        raise InputError(f"{target.parent}: is a file, not a directory")
+    return target
+
+
+def save_model(model, path: str | os.PathLike) -> Path:
+    """Write ``model`` to the directory ``path`` atomically (module docstring)."""
+    target = check_model_target(path)
     body, files = _manifest(model)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex}"
@@ -149,6 +151,29 @@ def _read_manifest(directory: Path) -> dict:
     return body
 
 
+def _load_member(directory: Path, entry) -> Member:
+    """One member of the manifest: its weights file checked against the recorded SHA-256."""
+    if not isinstance(entry, dict):
+        raise InputError(f"{directory / MANIFEST}: malformed member record")
+    name = str(entry.get("file", ""))
+    file = directory / name
+    if not name or Path(name).name != name or not file.is_file():
+        raise InputError(f"{file}: weights file missing")
+    blob = file.read_bytes()
+    if sha256_bytes(blob) != entry.get("sha256"):
+        raise InputError(f"{file}: SHA-256 mismatch: the weights were modified or do not "
+                         "belong to this model; refusing to load")
+    try:
+        state = st_load(blob)
+    except (SafetensorError, ValueError) as exc:
+        raise InputError(f"{file}: unreadable safetensors file ({exc})") from None
+    try:
+        return Member(int(entry["seed"]), state, list(entry.get("history", [])),
+                      int(entry.get("best_epoch", 0)), int(entry.get("parameters", 0)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{directory / MANIFEST}: malformed member record ({exc})") from None
+
+
 def load_model(path: str | os.PathLike):
     """Read a model directory (or its ``model.json``) -> :class:`ensemble.RulModel`."""
     from .ensemble import RulModel
@@ -173,28 +198,13 @@ def load_model(path: str | os.PathLike):
         conformal = None if body["conformal"] is None else \
             SplitConformal.from_dict(body["conformal"])
         entries = list(body["members"])
-    except (KeyError, TypeError) as e:
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise InputError(f"{p / MANIFEST}: malformed manifest ({e})") from None
     if scaler.columns != columns:
         raise InputError(f"{p / MANIFEST}: the scaler's columns differ from the inputs")
     if not entries:
         raise InputError(f"{p / MANIFEST}: no trained members")
-    members = []
-    for e in entries:
-        name = str(e.get("file", ""))
-        file = p / name
-        if Path(name).name != name or not file.is_file():
-            raise InputError(f"{file}: weights file missing")
-        blob = file.read_bytes()
-        if sha256_bytes(blob) != e.get("sha256"):
-            raise InputError(f"{file}: SHA-256 mismatch: the weights were modified or do not "
-                             "belong to this model; refusing to load")
-        try:
-            state = st_load(blob)
-        except (SafetensorError, ValueError) as exc:
-            raise InputError(f"{file}: unreadable safetensors file ({exc})") from None
-        members.append(Member(int(e["seed"]), state, list(e.get("history", [])),
-                              int(e.get("best_epoch", 0)), int(e.get("parameters", 0))))
+    members = [_load_member(p, e) for e in entries]
     model = RulModel(config, columns, scaler, members, conformal,
                      info={"hyprog_version": version, "path": str(p)})
     model.networks()  # weights must fit the recorded network

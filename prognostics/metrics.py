@@ -1,17 +1,23 @@
 """Prognostics metrics: RMSE, NASA score, per-cycle mean, prediction horizon, interval coverage.
 
-Conventions (write them down: the literature flips signs)
----------------------------------------------------------
-Error of a prediction ``ŷ`` of the true RUL ``y``: ``d = ŷ - y`` (PHM08 / Saxena et al., "Damage
-propagation modeling for aircraft engine run-to-failure simulation", PHM 2008, eq. 1). ``d > 0``
-is a **late** prediction (RUL over-estimated: the engine fails before we expect), penalised
-harder; ``d < 0`` is early. The paper (Sec. 4.5) writes the same score with ``Δ = y - ŷ``.
+Conventions (written down because the literature flips signs)
+-------------------------------------------------------------
+Error of a prediction ``ŷ`` of the true RUL ``y`` (the paper's Sec. 4.5 and this issue's
+convention): ``Δ = y - ŷ``, **true minus predicted**.
 
-- RMSE ``= sqrt(mean(d²))``.
-- NASA score ``s = Σ_j (exp(-d_j / 13) - 1)`` for ``d_j < 0`` and ``(exp(d_j / 10) - 1)`` for
-  ``d_j >= 0``; ``s = 0`` for perfect predictions, e.g. ``d = +10`` costs ``e - 1 = 1.718`` and
-  ``d = -10`` costs ``exp(10/13) - 1 = 1.158``. The paper reports ``s x 10^5`` summed over every
-  test sample.
+- ``Δ > 0``: the RUL is under-estimated, the prediction is **early** (maintenance too soon):
+  ``α = 1/13``.
+- ``Δ < 0``: the RUL is over-estimated, the prediction is **late** (the engine fails before we
+  expect it to): ``α = 1/10``, the harder penalty.
+
+- RMSE ``= sqrt(mean(Δ²))``.
+- NASA score ``s = Σ_j (exp(α_j |Δ_j|) - 1)`` with ``α_j = 1/13`` for ``Δ_j > 0`` (early) and
+  ``1/10`` for ``Δ_j <= 0`` (late; ``Δ = 0`` costs 0 either way): e.g. ``ŷ = y - 10``
+  (``Δ = +10``, early) costs ``exp(10/13) - 1 = 1.158``, ``ŷ = y + 10`` (``Δ = -10``, late)
+  costs ``e - 1 = 1.718``. This is the PHM08 score of Saxena, Goebel, Simon & Eklund, "Damage
+  propagation modeling for aircraft engine run-to-failure simulation", PHM 2008, eq. 1, which
+  writes it with ``d = ŷ - y = -Δ``; the paper's eq. (score) omits the ``- 1`` (a constant
+  ``m`` per test set). The paper reports ``s x 10^5`` summed over every test sample.
 - Per-cycle mean (the paper's ``ŷ_u^[c]``): the mean prediction over the samples of cycle ``c``
   of unit ``u``, with the min/max of those predictions as the band.
 - Prediction horizon (the paper's ``t_EOL - t_{|Δ| <= 5}``): on the per-cycle mean,
@@ -45,15 +51,16 @@ HORIZON_TOL = 5.0
 
 
 def rmse(y_true, y_pred) -> float:
-    d = np.asarray(y_pred, float) - np.asarray(y_true, float)
-    return float(np.sqrt(np.mean(d * d))) if d.size else float("nan")
+    delta = np.asarray(y_true, float) - np.asarray(y_pred, float)
+    return float(np.sqrt(np.mean(delta * delta))) if delta.size else float("nan")
 
 
 def nasa_score(y_true, y_pred) -> float:
-    """PHM08 score (module docstring): late (``ŷ > y``) costs ``exp(d/10) - 1``, early
-    ``exp(-d/13) - 1``."""
-    d = np.asarray(y_pred, float) - np.asarray(y_true, float)
-    return float(np.sum(np.where(d < 0, np.expm1(-d / EARLY_A), np.expm1(d / LATE_A))))
+    """NASA / PHM08 score (module docstring) with ``Δ = y - ŷ``: early (``Δ > 0``) costs
+    ``exp(Δ/13) - 1``, late (``Δ <= 0``) ``exp(-Δ/10) - 1``."""
+    delta = np.asarray(y_true, float) - np.asarray(y_pred, float)
+    return float(np.sum(np.where(delta > 0, np.expm1(delta / EARLY_A),
+                                 np.expm1(-delta / LATE_A))))
 
 
 def coverage(y_true, lower, upper) -> float:
@@ -123,8 +130,9 @@ def evaluate_predictions(pred: pd.DataFrame) -> dict:
     """Both protocols, per unit and overall, and the prediction horizon per unit.
 
     Returns ``{"samples": {"overall": m, "units": {u: m}}, "last": {"overall": m, "units":
-    {u: {"cycle", "RUL", "RUL_pred", "error"}}}, "horizon": {"units": {u: h}, "mean": h}}``
-    where ``m`` holds ``n``, ``rmse``, ``score`` (and ``coverage``, ``width`` with an interval).
+    {u: {"cycle", "RUL", "RUL_pred", "delta"}}}, "horizon": {"units": {u: h}, "mean": h}}``
+    where ``m`` holds ``n``, ``rmse``, ``score`` (and ``coverage``, ``width`` with an interval)
+    and ``delta = RUL - RUL_pred`` (the module's ``Δ``).
     """
     check_prediction_frame(pred)
     if len(pred) == 0:
@@ -136,7 +144,7 @@ def evaluate_predictions(pred: pd.DataFrame) -> dict:
     last_units = {}
     for r in last.itertuples(index=False):
         e = {"cycle": int(r.cycle), "RUL": float(r.RUL), "RUL_pred": float(r.mean),
-             "error": float(r.mean - r.RUL)}
+             "delta": float(r.RUL - r.mean)}
         if _has_interval(pred):
             e["lower"], e["upper"] = float(r.lower), float(r.upper)
         last_units[int(r.unit)] = e

@@ -7,11 +7,14 @@ FNN (time-independent): one time step ``x in R^n`` -> RUL, layers ``[n, 200, 200
                                                    100,701 for n = 50
 
 1-D CNN (time-dependent): a window ``(n channels, L = 50 time steps)`` ->
-three ``Conv1d`` of kernel 10 with 10, 10 and 1 output channels, zero padding 'same' (an
-even kernel cannot pad symmetrically: 4 zeros left, 5 right, as PyTorch's ``padding='same'``
-does, written as an explicit ``ZeroPad1d`` so that torch does not warn on every model) so
+three ``Conv1d`` of kernel 10 with 10, 10 and 1 output channels, zero padding 'same' so
 every map keeps length ``L``, ReLU after each; flatten (``L`` values); dense 50, ReLU; linear
-output. Parameters::
+output. An even kernel cannot pad symmetrically: output ``i`` sees inputs ``i - 4 .. i + 5``
+(4 zeros left, 5 right, as PyTorch's ``padding='same'`` does). :class:`SameConv1d` gets it by
+padding 5 on both sides inside the convolution and dropping the first output, which is the
+same function as an explicit ``ZeroPad1d((4, 5))`` in front but about twice as fast on CPU
+(no padded copy of every batch; measured in ``benchmarks/prognostics_speed.py``).
+Parameters::
 
     (10 n + 1) 10 + (100 + 1) 10 + (100 + 1) + (L + 1) 50 + 51
         = 5,722 for n = 20, 8,722 for n = 50 (L = 50)
@@ -58,6 +61,21 @@ class FNN(nn.Module):
         return self.net(x).squeeze(-1)
 
 
+class SameConv1d(nn.Conv1d):
+    """``Conv1d`` whose output has the input's length: zero padding ``(k - 1) // 2`` on the
+    left and ``k - 1 - (k - 1) // 2`` on the right (PyTorch's ``padding='same'``), done as the
+    larger padding on both sides and the first ``offset`` outputs dropped."""
+
+    def __init__(self, c_in: int, c_out: int, kernel: int):
+        right = kernel - 1 - (kernel - 1) // 2
+        super().__init__(c_in, c_out, kernel, padding=right)
+        self.offset = right - (kernel - 1) // 2
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, c_in, L) -> (B, c_out, L)
+        y = super().forward(x)
+        return y[..., self.offset:self.offset + x.shape[-1]]
+
+
 class CNN1D(nn.Module):
     """Three 1-D convolutions over time, dense 50, linear output (module docstring)."""
 
@@ -67,9 +85,7 @@ class CNN1D(nn.Module):
         layers: list[nn.Module] = []
         c_in = n_inputs
         for c in channels:
-            left = (kernel - 1) // 2
-            layers += [nn.ZeroPad1d((left, kernel - 1 - left)), nn.Conv1d(c_in, c, kernel),
-                       nn.ReLU()]
+            layers += [SameConv1d(c_in, c, kernel), nn.ReLU()]
             c_in = c
         layers += [nn.Flatten(), nn.Linear(c_in * window, dense), nn.ReLU(), nn.Linear(dense, 1)]
         self.net = nn.Sequential(*layers)

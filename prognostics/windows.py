@@ -61,11 +61,12 @@ class Windows:
         return self.base.unfold(0, self.length, 1)
 
     def batch(self, index: torch.Tensor) -> torch.Tensor:
-        """The inputs of windows ``index``: ``(B, k, L)``, or ``(B, k)`` when ``L == 1``."""
+        """The inputs of windows ``index``: a contiguous ``(B, k, L)`` copy of those windows
+        (the layout ``Conv1d`` runs fastest on), or ``(B, k)`` when ``L == 1``."""
         s = self.starts[index]
         if self.length == 1:
             return self.base[s]
-        return self.view()[s]
+        return self.view()[s].contiguous()
 
     def to(self, device) -> Windows:
         """The same windows on ``device`` (the base moves once; windows stay views)."""
