@@ -22,14 +22,39 @@ pruning), so a large fleet is never shipped whole.
 
 Output (``out``): the paper's feature table, a parquet directory partitioned by unit in the
 layout of :mod:`engine_model.datasets`, one unit written atomically as soon as it is done
-(:func:`datasets.write_unit_part`). Rerunning with the same ``out`` skips units already
-written (resumable); an interrupted run leaves complete units and nothing half-written. The
+(:func:`datasets.write_unit_part`: a unit is complete or absent, never an empty folder). The
 metadata of the input is kept and a ``calibration`` entry added (method, options, setup,
-hyprog version); resuming into a directory written with other settings is refused.
+hyprog version, and per unit the ``input`` it was computed from: rows, sensors used and the
+fingerprint of its rows, :mod:`calibration.fingerprint`).
+
+Safety of the output:
+
+- one writer per ``out`` (:func:`datasets.output_lock`): a second run into the same ``out``
+  is refused while the first runs; a lock left by a killed run is taken over;
+- ``out`` must be absent, empty or a feature table hyprog wrote (a raw dataset or a folder of
+  other files is refused);
+- resume: rerunning with the same ``out`` skips a unit only when *its own* stored metadata
+  matches this run: the settings (method, options, setup) and the fingerprint of the unit's
+  input rows; any difference is an error naming the unit and the setting or input that
+  differs;
+- only temporaries whose writer is gone are deleted (:func:`datasets.remove_stale_temporaries`).
+
+Before any work every unit to calibrate is read once and checked (:func:`series.prepare_unit`:
+columns, numbers, NaN, envelope, duplicated time stamps; :func:`unit_check.check_units`: the
+data against the model at theta = 0, units of measure), so bad input fails before anything
+is written. After estimating, :func:`unit_check.check_result` adds warnings (a channel the
+model cannot explain, theta_hat at a bound) to each unit's summary.
+
+Worker processes die with their parent (:func:`watch_parent`): on Linux through
+``prctl(PR_SET_PDEATHSIG, SIGKILL)``, everywhere through a watchdog thread that ends the worker
+when its parent process is gone, so a SIGKILL of ``hyprog calibrate --jobs J`` leaves no
+worker behind.
 """
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -42,7 +67,10 @@ from engine_model import datasets
 from engine_model.validation import InputError
 
 from .base import estimator_class
+from .fingerprint import input_record
+from .series import prepare_unit
 from .setup import CalibrationSetup
+from .unit_check import check_result, check_units
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
 
@@ -51,7 +79,8 @@ LOCKSTEP_METHODS = ("ukf", "ekf")
 class FleetRun:
     """What :func:`calibrate_fleet` did. ``results``: unit -> :class:`CalibrationResult`
     (only when ``keep_results``); ``units``: unit -> summary dict (samples, seconds,
-    non-converged, unobservable); ``skipped``: units already in ``out``."""
+    non-converged, unobservable, warnings); ``skipped``: units already in ``out``;
+    ``sensors``: the measured channels used; ``warnings``: every unit's warnings."""
 
     method: str
     setup: CalibrationSetup
@@ -63,6 +92,8 @@ class FleetRun:
     seconds: float = 0.0
     out: str | None = None
     workers: int = 1
+    sensors: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
 
     @property
     def samples(self) -> int:
@@ -112,20 +143,36 @@ def _worker_model(threads: int | None):
     return _WORKER_MODEL[threads]
 
 
+def unit_frames(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
+    """unit -> its rows, indexed by the 1-based rows of the user's file when ``df`` has
+    :data:`datasets.SOURCE_ROW` (so that errors name them), else 0..n-1."""
+    out = {}
+    for u, g in df.groupby("unit", sort=False):
+        if datasets.SOURCE_ROW in g.columns:
+            g = g.set_index(datasets.SOURCE_ROW)
+            g.index.name = None
+        else:
+            g = g.reset_index(drop=True)
+        out[int(u)] = g
+    return out
+
+
 def run_task(task: dict) -> list[tuple]:
-    """Calibrate one task's units (in a worker): returns ``[(unit, features, result)]``."""
+    """Calibrate one task's units (in a worker): returns ``[(unit, features, result)]``;
+    ``result.diagnostics["warnings"]`` holds :func:`unit_check.check_result`'s warnings."""
     method, setup, options = task["method"], task["setup"], task["options"]
     frames = task.get("frames")
     if frames is None:
-        df, _ = datasets.read_dataset(task["path"], units=task["units"])
-        frames = [g.reset_index(drop=True) for _, g in df.groupby("unit", sort=False)]
-        by_unit = {int(f["unit"].iloc[0]): f for f in frames}
+        df, _ = datasets.read_dataset(task["path"], units=task["units"], source_rows=True)
+        by_unit = unit_frames(df)
         frames = [by_unit[u] for u in task["units"]]
     model = _worker_model(task.get("threads"))
     est = estimator_class(method)(model=model, **options)
     results = est.estimate_many(frames, setup, task.get("source"))
     out = []
     for u, f, r in zip(task["units"], frames, results, strict=True):
+        series = prepare_unit(f, setup, task.get("source"))
+        r.diagnostics["warnings"] = check_result(r, series, setup)
         out.append((u, r.to_features(f), r))
     return out
 
@@ -142,13 +189,49 @@ class _Serial:
     def close(self):
         pass
 
+    def abort(self):
+        pass
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+WATCH_PERIOD_S = 0.5
+
+
+def watch_parent(parent_pid: int) -> None:
+    """Make this (worker) process die with its parent ``parent_pid`` (module docstring):
+    ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux, and a daemon thread that polls
+    ``os.getppid()`` every ``WATCH_PERIOD_S`` and ends the process once the parent is gone
+    (the child is re-parented then)."""
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no libc prctl
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch():
+        while True:
+            time.sleep(WATCH_PERIOD_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="hyprog-parent-watch", daemon=True).start()
+
 
 class _Processes:
     def __init__(self, jobs):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        self.ex = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"))
+        self.ex = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
+                                      initializer=watch_parent, initargs=(os.getpid(),))
 
     def run(self, tasks):
         from concurrent.futures import as_completed
@@ -163,6 +246,16 @@ class _Processes:
 
     def close(self):
         self.ex.shutdown(wait=True, cancel_futures=True)
+
+    def abort(self):
+        """Stop now (an interrupt or an error): cancel what is queued, end the workers."""
+        procs = list((getattr(self.ex, "_processes", None) or {}).values())
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=5)
 
 
 class _Dask:
@@ -200,28 +293,96 @@ class _Dask:
             self.client.close()
             self.cluster.close()
 
+    def abort(self):
+        self.close()
+
 
 # ----------------------------------------------------------------------------- driver
-def _check_resume(out: Path, calib_meta: dict) -> list[int]:
-    done = datasets.written_units(out)
-    if not done:
-        return []
-    old = datasets.read_metadata(out).get("calibration", {})
-    diff = [k for k in ("method", "options", "setup") if old.get(k) != calib_meta.get(k)]
-    if diff:
-        raise InputError(f"{out}: holds units calibrated with other settings "
-                         f"({', '.join(diff)} differ: method {old.get('method')!r}); choose "
-                         "another output or delete it")
-    return done
+def _flat(d, prefix="") -> dict:
+    """``{"setup": {"noise_scale": 1}}`` -> ``{"setup.noise_scale": 1}``."""
+    out = {}
+    for k, v in (d or {}).items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _first_difference(stored: dict, now: dict) -> str | None:
+    """The first setting that differs between two calibration entries, in words."""
+    a, b = _flat(stored), _flat(now)
+    for k in sorted(set(a) | set(b)):
+        if k in ("hyprog_version",) or k.startswith("input."):
+            continue
+        if a.get(k) != b.get(k):
+            return f"{k} is {a.get(k)!r} there, {b.get(k)!r} now"
+    return None
+
+
+def check_output_dir(out: Path) -> None:
+    """``out`` is absent, empty or a feature table hyprog wrote (module docstring)."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(f"{out}: exists and is not a directory; choose another output")
+    if not any(p for p in out.iterdir() if not p.name.startswith(".")):
+        return
+    if not datasets.written_by_hyprog(out):
+        raise InputError(f"{out}: exists and holds files hyprog did not write; choose another"
+                         " output (a feature table is written into a new or empty directory)")
+    if "calibration" not in datasets.read_metadata(out):
+        raise InputError(f"{out}: holds a dataset, not a feature table (its metadata has no"
+                         " 'calibration' entry); choose another output")
+
+
+def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict) -> None:
+    """The stored unit ``unit`` of ``out`` was computed with these settings from this input
+    (its own metadata, not the first file's); InputError naming what differs."""
+    part = out / f"unit={unit}" / datasets.PARQUET_PART
+    stored = datasets.read_metadata(part).get("calibration") or {}
+    diff = _first_difference({k: v for k, v in stored.items() if k != "input"},
+                             {k: v for k, v in calib_meta.items() if k != "input"})
+    if diff is not None:
+        raise InputError(f"{out}: unit {unit} was calibrated with other settings ({diff});"
+                         " choose another output or delete it")
+    old = stored.get("input") or {}
+    if old.get("sha256") != record["sha256"]:
+        what = (f"{old.get('rows')} rows there, {record['rows']} now"
+                if old.get("rows") != record["rows"] else "the same number of rows, other"
+                " values")
+        if not old:
+            what = "no fingerprint of its input is stored (an older hyprog wrote it)"
+        raise InputError(f"{out}: unit {unit} was calibrated from other input data ({what});"
+                         " choose another output or delete it")
+    if old.get("sensors") != record["sensors"]:
+        raise InputError(f"{out}: unit {unit} was calibrated from sensors"
+                         f" {', '.join(old.get('sensors') or [])}, now"
+                         f" {', '.join(record['sensors'])}; choose another output or delete it")
+
+
+def _units_of(data, df_all, lengths):
+    """Yield ``(unit, frame)`` one unit at a time (a path is read unit by unit, with the rows
+    of the user's file as the index)."""
+    if df_all is not None:
+        for u, f in unit_frames(df_all).items():
+            yield u, f
+        return
+    for u in sorted(lengths):
+        df, _ = datasets.read_dataset(data, units=[u], source_rows=True)
+        yield u, unit_frames(df)[u]
 
 
 def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = None,
                     options: dict | None = None, units: Sequence[int] | None = None,
                     jobs: int = 1, scheduler=None, out=None, keep_results: bool = True,
-                    progress: Callable[[int, int], None] | None = None) -> FleetRun:
+                    progress: Callable[[int, int], None] | None = None,
+                    check_data: bool = True) -> FleetRun:
     """Calibrate every unit of ``data`` (a dataset path, or a DataFrame with a ``unit``
     column) with ``method`` (module docstring). ``options`` go to the estimator's constructor;
-    ``progress(done_units, total_units)`` is called as units finish."""
+    ``progress(done_units, total_units)`` is called as units finish. ``check_data`` compares
+    every unit with the model before estimating (:func:`unit_check.check_units`)."""
     setup = setup or CalibrationSetup()
     options = dict(options or {})
     estimator_class(method)  # unknown method: clear error before any work
@@ -253,21 +414,46 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
                   "hyprog_version": datasets.hyprog_version()}
     run = FleetRun(method=method, setup=setup, options=options,
                    out=None if out is None else str(out))
-    out_meta = {**meta, "calibration": calib_meta}
-    todo = dict(lengths)
-    if out is not None:
-        out = Path(out)
-        if out.exists() and not out.is_dir():
-            raise InputError(f"{out}: exists and is not a directory")
+    if out is None:
+        return _calibrate(run, data, source, df_all, meta, calib_meta, lengths, None, jobs,
+                          scheduler, keep_results, progress, check_data, t0)
+    out = Path(out)
+    check_output_dir(out)
+    with datasets.output_lock(out):
+        check_output_dir(out)  # again, now that no other writer can change it
         datasets.remove_stale_temporaries(out)
-        run.skipped = [u for u in _check_resume(out, calib_meta) if u in todo]
-        for u in run.skipped:
-            todo.pop(u)
+        return _calibrate(run, data, source, df_all, meta, calib_meta, lengths, out, jobs,
+                          scheduler, keep_results, progress, check_data, t0)
+
+
+def _calibrate(run, data, source, df_all, meta, calib_meta, lengths, out, jobs, scheduler,
+               keep_results, progress, check_data, t0) -> FleetRun:
+    setup, method, options = run.setup, run.method, run.options
+    done_before = set(datasets.written_units(out)) if out is not None else set()
+    records, todo = {}, {}
+    model = None
+    for u, frame in _units_of(data, df_all, lengths):
+        series = prepare_unit(frame, setup, source)  # bad input: an error before any work
+        records[u] = input_record(frame, u, series.sensors)
+        if u in done_before:
+            check_resume_unit(out, u, calib_meta, records[u])
+            run.skipped.append(u)
+            continue
+        todo[u] = lengths[u]
+        if check_data:
+            if model is None:
+                from .base import default_model
+
+                model = default_model()
+            check_units(model, series, setup, source)
+    run.skipped.sort()
+    first = records[min(records)]
+    run.sensors = list(first["sensors"])
 
     if scheduler is not None:
         ex = _Dask(scheduler, jobs)
         n_workers, threads = ex.n_workers, 1
-    elif jobs > 1:
+    elif jobs > 1 and todo:
         ex = _Processes(jobs)
         n_workers, threads = jobs, 1
     else:
@@ -281,26 +467,33 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
         if df_all is None:
             task["path"] = source
         else:
-            task["frames"] = [df_all[df_all["unit"] == u].reset_index(drop=True) for u in group]
+            frames = unit_frames(df_all[df_all["unit"].isin(group)])
+            task["frames"] = [frames[u] for u in group]
         tasks.append(task)
     done = 0
     try:
         for batch in ex.run(tasks):
             for u, feats, res in batch:
                 if out is not None:
-                    datasets.write_unit_part(feats, out, out_meta)
+                    unit_meta = {**meta, "calibration": {**calib_meta, "input": records[u]}}
+                    datasets.write_unit_part(feats, out, unit_meta)
                 if keep_results:
                     run.results[u] = res
                     run.features[u] = feats
                 d = res.diagnostics
+                warns = list(d.get("warnings", []))
+                run.warnings += warns
                 run.units[u] = {"samples": len(feats), "seconds": float(d.get("seconds", 0)),
                                 "n_nonconverged": int(d.get("n_nonconverged", 0)),
-                                "unobservable": list(d.get("unobservable", []))}
+                                "unobservable": list(d.get("unobservable", [])),
+                                "sensors": records[u]["sensors"], "warnings": warns}
                 done += 1
                 if progress is not None:
                     progress(done, len(todo))
-    finally:
-        ex.close()
+    except BaseException:
+        ex.abort()
+        raise
+    ex.close()
     run.seconds = time.perf_counter() - t0
     return run
 

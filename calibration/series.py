@@ -58,10 +58,45 @@ class UnitSeries:
         return setup.drift_std_per_sqrt_h ** 2 * self.dtau_h
 
 
+def _numbers(df: pd.DataFrame, columns, where: str) -> np.ndarray:
+    """``df[columns]`` as a float array; a value that is not a number is an InputError naming
+    its row (the index label: the row of the user's file when the reader set it) and column."""
+    try:
+        return df[list(columns)].to_numpy(float)
+    except (TypeError, ValueError):
+        pass
+    for c in columns:
+        col = df[c]
+        values = pd.to_numeric(col, errors="coerce")
+        bad = values.isna().to_numpy() & col.notna().to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{where}row {df.index[i]}, column {c}: {col.iloc[i]!r} is not a"
+                             " number")
+    return df[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+
+
+def _check_duplicate_times(df: pd.DataFrame, where: str) -> None:
+    """Two samples of one flight at the same time ``t`` are an error naming both rows."""
+    keys = [k for k in ("cycle", "t") if k in df.columns]
+    if "t" not in keys:
+        return
+    dup = df.duplicated(keys, keep=False).to_numpy()
+    if dup.any():
+        first = np.flatnonzero(dup)[:2]
+        rows = " and ".join(str(df.index[i]) for i in first)
+        at = ", ".join(f"{k} = {df[k].iloc[first[0]]:g}" for k in keys)
+        raise InputError(f"{where}rows {rows} have the same {' and '.join(keys)} ({at}):"
+                         f" duplicated time stamps ({int(dup.sum())} rows in all)")
+
+
 def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> UnitSeries:
     """Check and convert one unit's DataFrame. Errors name the source (file), unit, row and
-    column: a missing column, a NaN or infinite value, an operating point outside the
-    envelope, a reading <= 0 where the noise model needs a positive one."""
+    column: a missing column, a value that is not a number, a NaN or infinite value, an
+    operating point outside the envelope, a reading <= 0 where the noise model needs a
+    positive one, two samples with the same cycle and time. Rows are the DataFrame's index
+    labels (:func:`calibration.fleet.calibrate_fleet` sets them to the 1-based rows of the
+    user's file)."""
     unit = None
     if "unit" in df.columns and len(df):
         u = pd.unique(df["unit"])
@@ -80,8 +115,8 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
     except InputError as e:
         raise InputError(f"{where}{e}") from None
     index = df.index
-    w = df[list(W_NAMES)].to_numpy(float)
-    y = df[list(sensors)].to_numpy(float)
+    w = _numbers(df, W_NAMES, where)
+    y = _numbers(df, sensors, where)
     for arr, names in ((w, W_NAMES), (y, sensors)):
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -100,6 +135,7 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
     sigma = sigma_abs(y, sensors, scale=setup.noise_scale)
     n = len(df)
     cycle = df["cycle"].to_numpy() if "cycle" in df.columns else None
+    _check_duplicate_times(df, where)
     period = setup.sample_period_s
     if "t" in df.columns:
         t = df["t"].to_numpy(float)

@@ -34,12 +34,13 @@ State-space model shared by all (paper eq. 5-6)::
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from engine_model.channels import PAPER_THETA, THETA_NAMES, XS_NAMES
+from engine_model.channels import PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
 from engine_model.validation import ENVELOPE, InputError
 
 N_THETA = len(THETA_NAMES)
@@ -56,6 +57,28 @@ def _vec(value, n, what) -> np.ndarray:
     if a.shape != (n,):
         raise InputError(f"{what}: expected one value or {n} values, got {a.size}")
     return a.copy()
+
+
+KNOWN_COLUMNS = frozenset(("unit", "cycle", "t", "Fc", "hs", "RUL", "phi", *W_NAMES, *XS_NAMES,
+                           *XV_NAMES, *THETA_NAMES))
+
+
+def misspelt_channels(columns) -> list[tuple[str, str]]:
+    """``[(column, channel)]`` for each column that is not a known name but looks like a
+    measured channel that is absent: the same name in another case, or one character away
+    (``difflib`` ratio >= 0.6 with the same length), e.g. ``T3O`` -> ``T30``."""
+    cols = [str(c) for c in columns]
+    absent = [x for x in XS_NAMES if x not in cols]
+    out = []
+    for c in cols:
+        if c in KNOWN_COLUMNS or c.endswith(("_hat", "_std")):
+            continue
+        same_case = [x for x in absent if x.lower() == c.strip().lower()]
+        near = same_case or [x for x in difflib.get_close_matches(c, absent, n=1, cutoff=0.6)
+                             if len(x) == len(c)]
+        if near:
+            out.append((c, near[0]))
+    return out
 
 
 @dataclass(frozen=True)
@@ -178,7 +201,14 @@ class CalibrationSetup:
 
     def resolve_sensors(self, columns) -> tuple:
         """The sensors to use for data with ``columns``: the requested ones (each must be
-        present) or every measured channel present."""
+        present) or every measured channel present. A column whose name looks like a misspelt
+        measured channel that is absent (``T3O`` for ``T30``, ``t30``) is an error with the
+        suggestion (:func:`misspelt_channels`)."""
+        typos = misspelt_channels(columns)
+        if typos:
+            raise InputError("; ".join(f"column {c!r} looks like a misspelt {x!r} (the"
+                                       f" measured channel {x} is absent); rename it"
+                                       for c, x in typos))
         if self.sensors is None:
             sensors = tuple(c for c in XS_NAMES if c in columns)
             if not sensors:

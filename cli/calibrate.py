@@ -12,7 +12,16 @@ from typing import Annotated
 import typer
 from typer.core import TyperGroup
 
-from cli.common import CliError, console, echo_json, parse_list, parse_units, user_errors
+from cli.common import (
+    CliError,
+    console,
+    echo_json,
+    parse_list,
+    parse_units,
+    terminate_as_exit,
+    user_errors,
+    warn,
+)
 
 
 class _DefaultRun(TyperGroup):
@@ -103,8 +112,9 @@ def run(
 
     from calibration import UnobservableWarning
     from calibration.fleet import calibrate_fleet
+    from engine_model.channels import XS_NAMES
 
-    with user_errors(), warnings.catch_warnings(record=True) as caught:
+    with user_errors(), warnings.catch_warnings(record=True) as caught, terminate_as_exit():
         warnings.simplefilter("always", UnobservableWarning)
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
         opts = _options(method, window, stride, mode, hessian)
@@ -123,21 +133,31 @@ def run(
                     keep_results=False,
                     progress=lambda d, n: bar.update(task, completed=d, total=n))
     warned = sorted({str(w.message) for w in caught
-                     if issubclass(w.category, UnobservableWarning)})
+                     if issubclass(w.category, UnobservableWarning)}) + list(res.warnings)
+    nonconverged = sum(v["n_nonconverged"] for v in res.units.values())
+    absent = [c for c in XS_NAMES if c not in res.sensors]
     rep = {"out": str(out), "method": method, "params": list(setup.params),
+           "sensors": list(res.sensors), "sensors_absent": absent,
            "units": {str(u): v for u, v in sorted(res.units.items())},
-           "skipped": res.skipped, "samples": res.samples, "seconds": round(res.seconds, 2),
-           "samples_per_second": res.samples_per_second, "warnings": warned}
+           "skipped": res.skipped, "samples": res.samples, "n_nonconverged": nonconverged,
+           "seconds": round(res.seconds, 2), "samples_per_second": res.samples_per_second,
+           "warnings": warned}
     if as_json:
         echo_json(rep)
         return
-    c = console()
     for w in warned:
-        c.print(f"warning: {w}")
+        warn(w)
+    c = console()
+    c.print(f"sensors ({len(res.sensors)}): {', '.join(res.sensors)}"
+            + (f" (absent: {', '.join(absent)})" if absent else ""), soft_wrap=True)
     if res.skipped:
         c.print(f"resumed: units {', '.join(map(str, res.skipped))} were already in {out}")
     c.print(f"wrote {out}: {len(res.units)} unit(s), {res.samples:,} samples with {method} in "
             f"{res.seconds:.1f} s ({res.samples_per_second:,.0f} samples/s)")
+    if nonconverged:
+        per = ", ".join(f"unit {u}: {v['n_nonconverged']}" for u, v in sorted(res.units.items())
+                        if v["n_nonconverged"])
+        c.print(f"{nonconverged:,} of {res.samples:,} samples did not converge ({per})")
 
 
 @app.command("compare")

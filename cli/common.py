@@ -55,7 +55,8 @@ def user_errors(source: object = None) -> Iterator[None]:
     try:
         yield
     except (CliError, InputError) as e:
-        fail(f"{where}{e}")
+        text = str(e)
+        fail(text if source is not None and str(source) in text else f"{where}{text}")
     except FileNotFoundError as e:
         fail(f"{e.filename or source}: no such file")
     except IsADirectoryError as e:
@@ -64,6 +65,28 @@ def user_errors(source: object = None) -> Iterator[None]:
         fail(f"{e.filename or source}: {e.strerror or e}")
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         fail(f"{where}cannot read as CSV: {e}")
+
+
+@contextmanager
+def terminate_as_exit() -> Iterator[None]:
+    """Inside the block SIGTERM ends the command like Ctrl-C does (exit 143 after the
+    ``finally`` blocks ran: the output lock released, worker processes ended), instead of
+    killing the process where it stands. Only in the main thread (signals go there)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _exit(signum, frame):
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, _exit)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def get_model():
@@ -93,9 +116,15 @@ def parse_units(text: str | None, option: str = "--units") -> list[int] | None:
     if not text:
         return None
     try:
-        return [int(u) for u in text.split(",") if u.strip()]
+        units = [int(u) for u in text.split(",") if u.strip()]
     except ValueError:
         raise CliError(f"{option} {text}: expected comma-separated integers") from None
+    if not units:
+        raise CliError(f"{option} {text!r}: empty list")
+    twice = sorted({u for u in units if units.count(u) > 1})
+    if twice:
+        raise CliError(f"{option} {text}: unit(s) {', '.join(map(str, twice))} listed twice")
+    return units
 
 
 def check_choice(value: str, option: str, choices: Sequence[str]) -> str:

@@ -59,18 +59,22 @@ def import_cmapss(
                     ] = None,
     rul: Annotated[Path | None, typer.Option("--rul", help="RUL_FD00x.txt (with --test).")
                    ] = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="Replace --out even when hyprog did not write it.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ):
     """Read a C-MAPSS (2008) subset into a hyprog parquet dataset (N-CMAPSS names, alt in ft,
-    RUL per cycle; test unit u becomes unit 1000 + u). Written atomically."""
+    RUL per cycle; test unit u becomes unit 1000 + u). Written atomically; an existing --out
+    is replaced only when hyprog wrote it (or with --overwrite)."""
     from engine_model import datasets
 
     with user_errors():
         if (test is None) != (rul is None):
             raise CliError("give --test and --rul together (the RUL file belongs to the test"
                            " file)")
+        datasets.check_output(out, directory=True, overwrite=overwrite)
         df, meta = datasets.read_cmapss(train, test, rul)
-        path = datasets.write_parquet(df, out, meta)
+        path = datasets.write_parquet(df, out, meta, overwrite=overwrite)
     rep = {"out": str(path), "rows": len(df), "dev_units": meta["dev_units"],
            "test_units": meta["test_units"], "test_unit_offset": meta["test_unit_offset"]}
     if as_json:

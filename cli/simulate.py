@@ -7,7 +7,9 @@ from typing import Annotated
 
 import typer
 
-from cli.common import check_choice, console, echo_json, parse_units, user_errors
+from cli.common import CliError, check_choice, console, echo_json, parse_units, user_errors
+
+RECORDS = ("above_10kft", "all")  # engine_model.flight_profiles: the recorded part of a flight
 
 
 def simulate(
@@ -24,23 +26,33 @@ def simulate(
     fmt: Annotated[str, typer.Option("--format", help="parquet or h5.")] = "parquet",
     record: Annotated[str | None, typer.Option(
         "--record", help="above_10kft (N-CMAPSS, default) or all.")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="Replace --out even when hyprog did not write it (a folder or "
+        "file of other data); without it only a hyprog dataset of the same format is "
+        "replaced.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
-    """Simulate a fleet to failure and write it (atomically) with its metadata."""
-    from engine_model import fleet
+    """Simulate a fleet to failure and write it (atomically) with its metadata. An existing
+    --out is replaced only when hyprog wrote it (or with --overwrite)."""
+    from engine_model import datasets, fleet
     from engine_model.effects import parse_effect_spec
 
     with user_errors():
         check_choice(fmt, "--format", ("parquet", "h5"))
+        if record is not None:
+            check_choice(record, "--record", RECORDS)
+        if seed < 0:
+            raise CliError(f"--seed {seed}: expected an integer >= 0")
         unit_list = parse_units(units)
         effects = [parse_effect_spec(e) for e in (effect or [])]
         preset_obj = fleet.get_preset(preset)
         if rate is not None:
             fleet.check_rate(rate)
         n_units = len(fleet.select_units(preset_obj, unit_list))
+        out = datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
         if as_json:
             path, report = fleet.simulate(preset_obj, out, unit_list, rate, seed, effects,
-                                          record, fmt)
+                                          record, fmt, overwrite=overwrite)
         else:
             from rich.progress import Progress
 
@@ -48,7 +60,8 @@ def simulate(
                 task = bar.add_task(f"simulating {preset} ({n_units} units)", total=n_units)
                 path, report = fleet.simulate(
                     preset_obj, out, unit_list, rate, seed, effects, record, fmt,
-                    progress=lambda k, n, rows: bar.update(task, completed=k))
+                    progress=lambda k, n, rows: bar.update(task, completed=k),
+                    overwrite=overwrite)
     rep = {"out": str(path), "rows": report.total_rows, "seconds": round(report.seconds, 2),
            "units": {str(u): {"rows": report.rows[u], "eol": report.eol[u], "t_s": report.t_s[u],
                               "dropped": report.dropped[u]} for u in report.rows}}

@@ -240,10 +240,12 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
              units: Sequence[int] | None = None, rate_hz: float | None = None, seed: int = 0,
              effects: Sequence = (), record: str | None = None, fmt: str = "parquet",
              noise_scale: float = 1.0, model=None,
-             progress: Callable[[int, int, int], None] | None = None):
+             progress: Callable[[int, int, int], None] | None = None, overwrite: bool = False):
     """Simulate a fleet preset. With ``out`` the fleet is written (parquet streamed unit by
     unit, or N-CMAPSS h5) and ``(path, report)`` is returned; without, ``(df, metadata,
-    report)``. ``effects``: :class:`effects.Effect` instances switched on in the truth."""
+    report)``. ``effects``: :class:`effects.Effect` instances switched on in the truth. An
+    existing ``out`` is replaced only when hyprog wrote it, or with ``overwrite``
+    (:mod:`engine_model.datasets.ownership`)."""
     from .effects import split_series_effects
     from .model import EngineModel
 
@@ -287,12 +289,13 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
         return df, meta, report
     out = Path(out)
     if fmt == "parquet":
-        with datasets.parquet_unit_writer(out, meta) as write_unit:
+        with datasets.parquet_unit_writer(out, meta, overwrite=overwrite) as write_unit:
             for df in run():
                 write_unit(df)
     elif fmt == "h5":
+        datasets.check_output(out, directory=False, overwrite=overwrite)  # before the work
         df = pd.concat(list(run()), ignore_index=True)
-        datasets.write_ncmapss_h5(df, out, meta)
+        datasets.write_ncmapss_h5(df, out, meta, overwrite=overwrite)
     else:
         raise InputError(f"--format {fmt}: expected parquet or h5")
     report.seconds = time.perf_counter() - t0

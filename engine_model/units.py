@@ -49,3 +49,8 @@ def n_to_lbf(f):
 
 def ft_to_m(h):
     return h * FT_TO_M
+
+# offsets and factors of the units a user's file may be in by mistake (calibration.unit_check)
+C_TO_K = 273.15  # K at 0 degC
+F_TO_R = 459.67  # degR at 0 degF
+RPM_PER_REV_S = 60.0  # rpm per revolution per second

@@ -10,6 +10,8 @@ module          what is inside
                 sorting and normalising a table, column selection
 ``metadata``    the metadata JSON stored with a table (keys, version, sample rate)
 ``atomic``      writing through a temporary sibling + ``os.replace``; stale temporaries
+``ownership``   what an existing output path holds: replaced only when hyprog wrote it
+``lock``        one writer per output path (a lock file with the writer's host and pid)
 ``paths``       format detection (directory / suffix / magic bytes)
 ``parquet``     hyprog parquet, partitioned by unit (the native format)
 ``ncmapss_h5``  the N-CMAPSS h5 layout of the published files
@@ -33,6 +35,7 @@ from .cmapss import (
     read_rul_file,
 )
 from .dispatch import read_columns, read_dataset, read_metadata, write_dataset
+from .lock import output_lock
 from .metadata import META_KEY, SAMPLE_RATE_KEY, hyprog_version
 from .ncmapss_h5 import (
     DEFAULT_H5_RATE_HZ,
@@ -44,6 +47,7 @@ from .ncmapss_h5 import (
     read_ncmapss_h5,
     write_ncmapss_h5,
 )
+from .ownership import check_output, written_by_hyprog
 from .parquet import (
     PARQUET_COMPRESSION,
     PARQUET_PART,
@@ -59,6 +63,7 @@ from .schema import (
     INT_KEYS,
     INT_OPTIONAL,
     REQUIRED_COLUMNS,
+    SOURCE_ROW,
     SPLITS,
     canonical_columns,
     column_groups,
@@ -73,7 +78,8 @@ __all__ = [
     "write_parquet", "read_parquet", "read_metadata", "read_columns", "write_ncmapss_h5",
     "read_ncmapss_h5", "read_dataset", "write_dataset", "summarize", "canonical_columns",
     "column_groups", "written_units", "write_unit_part", "parquet_unit_writer",
-    "remove_stale_temporaries", "hyprog_version",
+    "remove_stale_temporaries", "hyprog_version", "SOURCE_ROW", "check_output",
+    "written_by_hyprog", "output_lock",
     "CMAPSS_COLUMNS", "CMAPSS_SENSORS", "CMAPSS_SETTINGS", "CMAPSS_SOURCE", "read_cmapss",
     "read_cmapss_text", "read_rul_file",
 ]

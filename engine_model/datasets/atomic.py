@@ -2,24 +2,78 @@
 
 Atomicity
 ---------
-Writers build the output in a temporary sibling (``.<name>.tmp-*``) and move it into place
-with ``os.replace`` only after everything was written; an existing target is replaced then,
-and on any exception the temporary is removed and the target is left as it was. A writer
-killed before it could clean up leaves only hidden ``.<name>.tmp-*`` entries, which readers
-ignore and :func:`remove_stale_temporaries` deletes.
+Writers build the output in a temporary sibling (``.<name>.tmp-<host>-<pid>-<random>``)
+and move it into place with ``os.replace`` only after everything was written; an existing
+target is replaced then (only one that :func:`.ownership.check_output` allows: what hyprog
+wrote, or anything with ``overwrite=True``), and on any exception the temporary is removed
+and the target is left as it was. A writer killed before it could clean up leaves only hidden
+``.<name>.tmp-*`` entries, which readers ignore. The temporary's name holds the writer's host
+and process id, so :func:`remove_stale_temporaries` deletes only those whose writer is gone
+(a process of this host that no longer runs), never another running writer's file.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import socket
 import tempfile
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from .ownership import check_output
+
 TEMPORARY_GLOB = ".*.tmp-*"
+TMP_MARK = ".tmp-"
+
+
+def host_name() -> str:
+    """This machine's name as it appears in temporaries and lock files (no '-' or '/')."""
+    return socket.gethostname().replace("-", "_").replace("/", "_") or "localhost"
+
+
+def temporary_prefix(name: str) -> str:
+    """``.<name>.tmp-<host>-<pid>-``: the prefix of this process's temporaries of ``name``."""
+    return f".{name}{TMP_MARK}{host_name()}-{os.getpid()}-"
+
+
+def pid_alive(pid: int) -> bool:
+    """True when a process ``pid`` runs on this machine (or exists but is not ours)."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def temporary_writer(name: str) -> tuple[str, int] | None:
+    """(host, pid) of the writer of a temporary named by :func:`temporary_prefix`, or None
+    for a name without them."""
+    _, mark, rest = name.partition(TMP_MARK)
+    if not mark:
+        return None
+    host, _, rest = rest.partition("-")
+    pid, _, _ = rest.partition("-")
+    try:
+        return host, int(pid)
+    except ValueError:
+        return None
+
+
+def writer_gone(name: str) -> bool:
+    """True when the temporary ``name`` was left by a writer that no longer runs (a process of
+    this host that is gone, or a name without a writer: an older hyprog's)."""
+    who = temporary_writer(name)
+    if who is None:
+        return True
+    host, pid = who
+    return host == host_name() and not pid_alive(pid)
 
 
 def remove_path(path: Path) -> None:
@@ -57,10 +111,13 @@ def swap_into_place(tmp: Path, target: Path) -> None:
 
 
 @contextmanager
-def atomic_output(target: Path, directory: bool) -> Iterator[Path]:
-    """Yield a temporary sibling of ``target`` to write into; move it in place on success."""
+def atomic_output(target: Path, directory: bool, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary sibling of ``target`` to write into; move it in place on success.
+    An existing ``target`` must be one hyprog may replace (:func:`.ownership.check_output`;
+    ``overwrite=True`` replaces anything)."""
+    target = check_output(target, directory, overwrite)
     target.parent.mkdir(parents=True, exist_ok=True)
-    prefix = f".{target.name}.tmp-"
+    prefix = temporary_prefix(target.name)
     if directory:
         tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=target.parent))
     else:
@@ -77,12 +134,13 @@ def atomic_output(target: Path, directory: bool) -> Iterator[Path]:
 
 
 def remove_stale_temporaries(path: str | os.PathLike) -> int:
-    """Delete the hidden temporaries an interrupted writer left under ``path``; returns how
+    """Delete the hidden temporaries that interrupted writers left under ``path`` (those whose
+    writer no longer runs: :func:`writer_gone`); a running writer's are kept. Returns how
     many were removed."""
     p = Path(path)
     if not p.is_dir():
         return 0
-    stale = [q for q in p.rglob(TEMPORARY_GLOB)]
+    stale = [q for q in p.rglob(TEMPORARY_GLOB) if writer_gone(q.name)]
     for q in stale:
         remove_path(q)
     return len(stale)

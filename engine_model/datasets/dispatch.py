@@ -39,15 +39,18 @@ def read_columns(path: str | os.PathLike) -> list[str]:
 
 def read_dataset(path: str | os.PathLike, units: Sequence[int] | None = None,
                  columns: Sequence[str] | None = None,
-                 split: str = "both") -> tuple[pd.DataFrame, dict[str, Any]]:
+                 split: str = "both", source_rows: bool = False
+                 ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Read parquet (a directory or ``.parquet`` file) or N-CMAPSS h5 (``.h5``/``.hdf5``).
 
     ``split`` selects dev/test units: from the arrays for h5, from the metadata's
-    ``dev_units`` / ``test_units`` for parquet.
+    ``dev_units`` / ``test_units`` for parquet. ``source_rows`` adds the column
+    :data:`~.schema.SOURCE_ROW` (1-based row of the user's file) for error messages.
     """
     p = existing_path(path)
     if detect_format(p) == "h5":
-        return read_ncmapss_h5(p, split=split, units=units, columns=columns)
+        return read_ncmapss_h5(p, split=split, units=units, columns=columns,
+                               source_rows=source_rows)
     check_split(split, p)
     if split != "both":
         key = f"{split}_units"
@@ -56,18 +59,19 @@ def read_dataset(path: str | os.PathLike, units: Sequence[int] | None = None,
             raise InputError(f"{p}: the metadata has no {key}; cannot select split {split!r}")
         listed = [int(u) for u in listed]
         units = listed if units is None else [u for u in units if int(u) in set(listed)]
-    return read_parquet(p, units=units, columns=columns)
+    return read_parquet(p, units=units, columns=columns, source_rows=source_rows)
 
 
 def write_dataset(df: pd.DataFrame, path: str | os.PathLike,
                   metadata: Mapping[str, Any] | None = None,
-                  format: str | None = None) -> Path:
+                  format: str | None = None, overwrite: bool = False) -> Path:
     """Write ``df`` as ``format`` ``"parquet"`` or ``"h5"``; None infers it from the suffix
-    (``.h5``/``.hdf5`` -> h5, anything else -> parquet)."""
+    (``.h5``/``.hdf5`` -> h5, anything else -> parquet). An existing ``path`` is replaced only
+    when hyprog wrote it or with ``overwrite`` (:mod:`.ownership`)."""
     p = Path(path)
     fmt = format or ("h5" if p.suffix.lower() in H5_SUFFIXES else "parquet")
     if fmt == "parquet":
-        return write_parquet(df, p, metadata)
+        return write_parquet(df, p, metadata, overwrite=overwrite)
     if fmt in ("h5", "hdf5", "ncmapss-h5"):
-        return write_ncmapss_h5(df, p, metadata)
+        return write_ncmapss_h5(df, p, metadata, overwrite=overwrite)
     raise InputError(f"{p}: unknown format {format!r} (expected 'parquet' or 'h5')")

@@ -44,6 +44,7 @@ from .paths import HDF5_MAGIC, existing_path, file_magic
 from .schema import (
     INT_KEYS,
     REQUIRED_COLUMNS,
+    SOURCE_ROW,
     SPLITS,
     as_int_keys,
     canonical_columns,
@@ -209,8 +210,8 @@ def _read_split(f: h5py.File, split: str, path: Path, units: Sequence[int] | Non
     all_units = sorted(int(u) for u in np.unique(unit_col))
     mask = np.ones(len(unit_col), bool) if units is None else np.isin(unit_col, list(units))
     runs, n_rows = _runs(mask), int(mask.sum())
+    data: dict[str, np.ndarray] = {SOURCE_ROW: np.flatnonzero(mask).astype(np.int64) + 1}
     del unit_col, mask
-    data: dict[str, np.ndarray] = {}
     for ds, names in groups.values():
         keep = [n for n in names if columns is None or n in columns or n in ("unit", "cycle")]
         if not keep:
@@ -247,7 +248,8 @@ def read_h5_columns(path: Path) -> list[str]:
 
 def read_ncmapss_h5(path: str | os.PathLike, split: str = "both",
                     units: Sequence[int] | None = None,
-                    columns: Sequence[str] | None = None) -> tuple[pd.DataFrame, dict[str, Any]]:
+                    columns: Sequence[str] | None = None,
+                    source_rows: bool = False) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Read an N-CMAPSS h5 file (published layout, or one written by :func:`write_ncmapss_h5`).
 
     ``split`` is ``"dev"``, ``"test"`` or ``"both"`` (a split absent from the file is skipped
@@ -255,6 +257,8 @@ def read_ncmapss_h5(path: str | os.PathLike, split: str = "both",
     metadata is the file's ``hyprog`` attribute (if any) with ``dev_units`` / ``test_units``
     (every unit of each split in the file), ``sample_rate_hz`` (1 Hz unless the file says) and
     ``source_format = "ncmapss-h5"``. ``t`` is rebuilt from the sample index (module doc).
+    ``source_rows`` adds :data:`~.schema.SOURCE_ROW`, the 1-based row of each sample in its
+    split's arrays (``W_dev`` ...).
     """
     check_split(split, path)
     p = existing_path(path)
@@ -290,10 +294,10 @@ def read_ncmapss_h5(path: str | os.PathLike, split: str = "both",
     rate = sample_rate(meta, DEFAULT_H5_RATE_HZ)
     if "t" not in df.columns:
         df = _add_time(df, rate)
-    order = canonical_columns(df.columns)
+    order = canonical_columns(c for c in df.columns if c != SOURCE_ROW)
     if columns is not None:
         order = selected_columns(order, columns, source)  # the keys, then the requested ones
-    df = normalise_table(df[order], source)
+    df = normalise_table(df[[*order, SOURCE_ROW]], source, keep_source_rows=source_rows)
     meta.update(dev_units=split_units.get("dev", []), test_units=split_units.get("test", []),
                 source_format=NCMAPSS_SOURCE)
     meta[SAMPLE_RATE_KEY] = rate
@@ -375,12 +379,13 @@ def _create(f: h5py.File, name: str, data: np.ndarray, compression: str | None) 
 
 def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
                      metadata: Mapping[str, Any] | None = None,
-                     compression: str | None = "gzip") -> Path:
+                     compression: str | None = "gzip", overwrite: bool = False) -> Path:
     """Write ``df`` in the N-CMAPSS h5 layout (module doc); atomic (temp file + os.replace).
 
     ``metadata['dev_units']`` / ``['test_units']`` choose the split (a unit in neither is an
     error when either is given; all units are dev when neither is). ``compression`` is an h5py
-    filter name (``"gzip"``, ``"lzf"``) or None. Returns the path written.
+    filter name (``"gzip"``, ``"lzf"``) or None. An existing ``path`` is replaced only when
+    hyprog wrote it or with ``overwrite`` (:mod:`.ownership`). Returns the path written.
     """
     path = Path(path)
     source = str(path)
@@ -392,7 +397,7 @@ def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
     _warn_dropped(list(table.columns), layout, source)
     _warn_if_t_lost(table, sample_rate(meta, DEFAULT_H5_RATE_HZ), source)
     var_names = {g: v for g, v, _ in H5_GROUPS}
-    with atomic_output(path, directory=False) as tmp:
+    with atomic_output(path, directory=False, overwrite=overwrite) as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs[META_KEY] = metadata_json(meta, source)
             for group, names in layout.items():

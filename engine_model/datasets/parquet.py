@@ -13,7 +13,13 @@ or ``_`` are not read (a writer's temporaries, see :mod:`.atomic`).
 Writers: :func:`write_parquet` (a whole table), :func:`parquet_unit_writer` (a stream of
 units, the directory appears when the last is written) and :func:`write_unit_part` (one unit
 added to an existing directory, for resumable writers; :func:`written_units` lists what is
-complete).
+complete). An existing output is replaced only when hyprog wrote it, or with
+``overwrite=True`` (:mod:`.ownership`).
+
+Rows of the user's file: ``read_parquet(..., source_rows=True)`` adds the column
+:data:`~.schema.SOURCE_ROW`, the 1-based row each sample has in the file it was read from (in
+a directory partitioned by unit, the row of that unit's part file), so that an error can name
+the row the user sees, whatever the sorting did.
 """
 
 from __future__ import annotations
@@ -31,11 +37,12 @@ import pyarrow.dataset as pds
 import pyarrow.parquet as pq
 
 from ..validation import InputError, check_columns
-from .atomic import atomic_output
+from .atomic import atomic_output, remove_path, swap_into_place, temporary_prefix
 from .metadata import META_KEY, metadata_for_write, metadata_json, parse_metadata
 from .paths import PARQUET_MAGIC, existing_path, file_magic
 from .schema import (
     REQUIRED_COLUMNS,
+    SOURCE_ROW,
     canonical_columns,
     check_units_found,
     normalise_table,
@@ -70,12 +77,13 @@ def _write_part(part: pd.DataFrame, file: Path, meta_json: bytes) -> None:
 
 
 def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
-                  metadata: Mapping[str, Any] | None = None) -> Path:
+                  metadata: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
     """Write ``df`` as a parquet directory partitioned by unit (``unit=<n>/part-0.parquet``).
 
     Rows are sorted by unit, cycle, t; ``metadata`` is stored as JSON under the schema metadata
     key ``hyprog`` of every part file. The directory appears only when complete (see
-    :mod:`.atomic`). Returns the path written.
+    :mod:`.atomic`); an existing ``path`` is replaced only when hyprog wrote it or with
+    ``overwrite`` (:mod:`.ownership`). Returns the path written.
     """
     path = Path(path)
     source = str(path)
@@ -83,15 +91,15 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     units = table["unit"].to_numpy()
     body = table.drop(columns="unit")
-    with atomic_output(path, directory=True) as tmp:
+    with atomic_output(path, directory=True, overwrite=overwrite) as tmp:
         for unit, rows in _unit_slices(units):
             _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
     return path
 
 
 @contextmanager
-def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | None = None
-                        ) -> Iterator[Callable[[pd.DataFrame], None]]:
+def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | None = None,
+                        overwrite: bool = False) -> Iterator[Callable[[pd.DataFrame], None]]:
     """Stream a fleet to a parquet directory one unit at a time (the same layout as
     :func:`write_parquet`), so a large fleet never has to be in memory at once::
 
@@ -100,13 +108,14 @@ def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | N
                 write_unit(df_unit)
 
     The directory appears only when the block completes; on any error nothing is left.
-    ``metadata`` is fixed when the writer opens (it goes into every part file).
+    ``metadata`` is fixed when the writer opens (it goes into every part file). An existing
+    ``path`` is checked when the writer opens (:mod:`.ownership`).
     """
     path = Path(path)
     source = str(path)
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     written: set[int] = set()
-    with atomic_output(path, directory=True) as tmp:
+    with atomic_output(path, directory=True, overwrite=overwrite) as tmp:
         def write_unit(df: pd.DataFrame) -> None:
             table = prepare_for_write(df, source)
             units = table["unit"].to_numpy()
@@ -141,8 +150,10 @@ def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
     """Add one unit's rows to the parquet dataset directory ``path`` (created if needed), in
     the layout of :func:`write_parquet`, atomically: the part file is written under a hidden
     temporary name (which readers ignore) and renamed into place when complete, so an
-    interrupted writer leaves every unit either complete or absent. An existing partition of
-    the same unit is replaced. Returns the part file."""
+    interrupted writer leaves every unit either complete or absent: the partition directory
+    ``unit=<n>`` is built as a hidden temporary directory and renamed into place, so there is
+    never an empty ``unit=<n>/``. An existing partition of the same unit is replaced. Returns
+    the part file."""
     path = Path(path)
     source = str(path)
     table = prepare_for_write(df, source)
@@ -151,11 +162,15 @@ def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
         raise InputError(f"{source}: write_unit_part takes one unit, got {len(units)}")
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     unit_dir = path / f"unit={int(units[0])}"
-    unit_dir.mkdir(parents=True, exist_ok=True)
-    target = unit_dir / PARQUET_PART
-    with atomic_output(target, directory=False) as tmp:
-        _write_part(table.drop(columns="unit"), tmp, meta_json)
-    return target
+    path.mkdir(parents=True, exist_ok=True)
+    tmp = path / f"{temporary_prefix(unit_dir.name)}{os.urandom(4).hex()}"
+    try:
+        _write_part(table.drop(columns="unit"), tmp / PARQUET_PART, meta_json)
+        swap_into_place(tmp, unit_dir)
+    except BaseException:
+        remove_path(tmp)
+        raise
+    return unit_dir / PARQUET_PART
 
 
 # ---------------------------------------------------------------------------------------------
@@ -229,13 +244,32 @@ def read_parquet_columns(path: Path) -> list[str]:
     return canonical_columns(["unit", *[c for c in cols if c != "unit"]])
 
 
+def _check_no_empty_units(path: Path, df: pd.DataFrame, units: Sequence[int] | None) -> None:
+    """InputError naming a ``unit=<n>`` partition that holds no rows (a unit of zero samples
+    would otherwise vanish without a word)."""
+    if not path.is_dir():
+        return
+    found = set(df["unit"].unique().tolist())
+    wanted = None if units is None else {int(u) for u in units}
+    for d in sorted(path.iterdir()):
+        u = _unit_from_dir(d / PARQUET_PART)
+        if u is None or not d.is_dir() or u in found or (wanted is not None and u not in wanted):
+            continue
+        if any(f.suffix == ".parquet" and not f.name.startswith((".", "_"))
+               for f in d.iterdir()):
+            raise InputError(f"{d}: unit {u} has no rows (an empty part file); delete the"
+                             " partition or write the unit's samples")
+
+
 def read_parquet(path: str | os.PathLike, units: Sequence[int] | None = None,
-                 columns: Sequence[str] | None = None) -> tuple[pd.DataFrame, dict[str, Any]]:
+                 columns: Sequence[str] | None = None,
+                 source_rows: bool = False) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Read a parquet dataset directory (or a single parquet file) -> ``(df, metadata)``.
 
     ``units`` reads only those units (partition pruning); ``columns`` loads only those columns
     besides ``unit``, ``cycle``, ``t``, which always come back. ``unit`` is int64, rows are
-    sorted by unit, cycle, t.
+    sorted by unit, cycle, t. ``source_rows`` adds :data:`~.schema.SOURCE_ROW` (module doc).
+    A ``unit=<n>`` partition without rows is an error.
     """
     p = existing_path(path)
     source = str(p)
@@ -247,17 +281,27 @@ def read_parquet(path: str | os.PathLike, units: Sequence[int] | None = None,
     wanted = selected_columns(names, columns, source)
     file_columns = [c for c in wanted if c in dataset.schema.names]
     flt = None
-    if units is not None and dir_unit is None:
+    in_file_order = p.is_file()  # a lone file's row numbers need it read unfiltered
+    if units is not None and dir_unit is None and not in_file_order:
         flt = pds.field("unit").isin([int(u) for u in units])
     try:
         df = dataset.to_table(columns=file_columns, filter=flt).to_pandas()
     except (pa.ArrowException, OSError) as exc:
         raise _arrow_error(p, exc) from None
+    if p.is_dir():  # the row of the unit's part file
+        rows = df.groupby("unit", sort=False).cumcount().to_numpy() + 1
+    else:
+        rows = np.arange(1, len(df) + 1)
+    df[SOURCE_ROW] = rows.astype(np.int64)
+    wanted = [*wanted, SOURCE_ROW]
+    if in_file_order and units is not None and dir_unit is None:
+        df = df[df["unit"].isin([int(u) for u in units])]
     if dir_unit is not None:
         df.insert(0, "unit", np.full(len(df), dir_unit, dtype=np.int64))
         if units is not None and dir_unit not in set(int(u) for u in units):
             df = df.iloc[:0]
     if units is not None:
         check_units_found(df["unit"].unique(), units, source)
-    df = normalise_table(df[wanted], source)
+    _check_no_empty_units(p, df, units)
+    df = normalise_table(df[wanted], source, keep_source_rows=source_rows)
     return df, read_parquet_metadata(p)

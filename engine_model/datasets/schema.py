@@ -13,6 +13,11 @@ Only ``unit cycle alt Mach TRA T2`` are required; any sensor, virtual or truth c
 absent (a user's file), and further columns are kept. ``unit`` and ``cycle`` must not be NaN.
 Tables are returned sorted by ``unit, cycle, t`` with a fresh RangeIndex.
 
+Values: the channel columns (w, x_s, x_v, phi, theta, ``t``) are numbers; a column of numeric
+strings (a CSV-born parquet file) is read as float64, a value that is not a number is an error
+naming the column, the row and the value. Rows in messages are 1-based rows of the user's file
+(:data:`SOURCE_ROW` when the reader added it, else the position in the table as given).
+
 Splits: a dataset's units are either development (``dev``) or test units (``SPLITS``); which
 is which is recorded in the metadata (:mod:`.metadata`) or, for h5, by the arrays.
 """
@@ -32,6 +37,7 @@ REQUIRED_COLUMNS = ("unit", "cycle", *W_NAMES)
 INT_KEYS = ("unit", "cycle")  # must be integers, never NaN
 INT_OPTIONAL = ("Fc", "hs", "RUL")  # int64 when every value is an integer
 SORT_KEYS = ("unit", "cycle", "t")
+SOURCE_ROW = "source_row"  # 1-based row of the user's file (readers add it on request)
 SPLITS = ("dev", "test")
 CANONICAL = (*BOOKKEEPING, *W_NAMES, *XS_NAMES, *XV_NAMES, "phi", *THETA_NAMES)
 
@@ -66,6 +72,37 @@ def check_unique(columns: Sequence[str], source: str) -> None:
         raise InputError(f"{source}: duplicate column(s) {', '.join(dup)}")
 
 
+NUMERIC_COLUMNS = ("t", *W_NAMES, *XS_NAMES, *XV_NAMES, "phi", *THETA_NAMES)
+
+
+def row_label(df: pd.DataFrame, i: int):
+    """The row of the ``i``-th row of ``df`` as the user knows it: the 1-based row of the file
+    (:data:`SOURCE_ROW`, added by the readers), else the DataFrame's index label (a table
+    given in memory)."""
+    if SOURCE_ROW in df.columns:
+        return int(df[SOURCE_ROW].iloc[i])
+    label = df.index[i]
+    return label.item() if hasattr(label, "item") else label
+
+
+def as_numeric(df: pd.DataFrame, source: str) -> pd.DataFrame:
+    """The channel columns (:data:`NUMERIC_COLUMNS`) stored as text converted to float64; a
+    value that is not a number is an InputError naming its column, row and value."""
+    out = {}
+    for name in NUMERIC_COLUMNS:
+        if name not in df.columns or pd.api.types.is_numeric_dtype(df[name].dtype):
+            continue
+        col = df[name]
+        values = pd.to_numeric(col, errors="coerce")
+        bad = values.isna().to_numpy() & col.notna().to_numpy()
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{source}: row {row_label(df, i)}, column {name}: "
+                             f"{col.iloc[i]!r} is not a number")
+        out[name] = values.to_numpy(dtype=np.float64, na_value=np.nan)
+    return df.assign(**out) if out else df
+
+
 def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
     """``unit``/``cycle`` to int64 (NaN or fractions are errors); Fc/hs/RUL to int64 if exact;
     ``t`` to float64."""
@@ -74,20 +111,24 @@ def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
         col = df[name]
         if col.dtype == np.int64:
             continue
-        values = col.to_numpy(dtype=np.float64, na_value=np.nan)
+        values = pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64,
+                                                               na_value=np.nan)
         bad = ~np.isfinite(values)
         if bad.any():
-            row = df.index[int(np.flatnonzero(bad)[0])]
-            raise InputError(f"{source}: column {name} is NaN (or missing) at row {row}")
+            i = int(np.flatnonzero(bad)[0])
+            text = f" ({col.iloc[i]!r})" if isinstance(col.iloc[i], str) else ""
+            raise InputError(f"{source}: column {name} is NaN, missing or not a number{text}"
+                             f" at row {row_label(df, i)}")
         frac = values != np.round(values)
         if frac.any():
-            row = df.index[int(np.flatnonzero(frac)[0])]
+            row = row_label(df, int(np.flatnonzero(frac)[0]))
             raise InputError(f"{source}: column {name} = {values[frac][0]:g} at row {row} is"
                              " not an integer")
         out[name] = values.astype(np.int64)
     for name in INT_OPTIONAL:
         if name in df.columns and df[name].dtype != np.int64:
-            values = df[name].to_numpy(dtype=np.float64, na_value=np.nan)
+            values = pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=np.float64,
+                                                                       na_value=np.nan)
             if np.isfinite(values).all() and (values == np.round(values)).all():
                 out[name] = values.astype(np.int64)
     if "t" in df.columns and df["t"].dtype != np.float64:
@@ -114,17 +155,21 @@ def is_sorted(df: pd.DataFrame, keys: Sequence[str]) -> bool:
     return True
 
 
-def normalise_table(df: pd.DataFrame, source: str, unit_first: bool = True) -> pd.DataFrame:
-    """Check and coerce the bookkeeping columns, sort by unit, cycle, t, reset the index."""
+def normalise_table(df: pd.DataFrame, source: str, unit_first: bool = True,
+                    keep_source_rows: bool = True) -> pd.DataFrame:
+    """Check and coerce the bookkeeping and channel columns, sort by unit, cycle, t, reset the
+    index; :data:`SOURCE_ROW` is dropped after the checks unless ``keep_source_rows``."""
     if not isinstance(df, pd.DataFrame):
         raise InputError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
     check_unique(list(df.columns), source)
     check_columns(list(df.columns), INT_KEYS, what=source)
-    df = as_int_keys(df, source)
+    df = as_int_keys(as_numeric(df, source), source)
     keys = sort_keys(df)
     if not is_sorted(df, keys):
         df = df.sort_values(keys, kind="stable")
     df = df.reset_index(drop=True)
+    if not keep_source_rows and SOURCE_ROW in df.columns:
+        df = df.drop(columns=SOURCE_ROW)
     if unit_first and df.columns[0] != "unit":
         df = df[["unit", *[c for c in df.columns if c != "unit"]]]
     return df
