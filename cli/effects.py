@@ -12,8 +12,8 @@ from cli.common import console, echo_json
 def effects(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ):
-    """List the effect library: name, parameters, units, default and realistic sizes, and the
-    channels each effect moves. Switch one on in a simulation with
+    """List the effect library: name, parameters, units, default, realistic and valid ranges,
+    and the channels each effect moves. Switch one on in a simulation with
     ``hyprog simulate --effect NAME[:param=value,...]``."""
     from engine_model.effects import describe_effects
 
@@ -27,14 +27,16 @@ def effects(
     for e in lib:
         out.print(f"[bold]{e['name']}[/bold] ({e['kind']}): {e['description']}")
         t = Table(box=None, padding=(0, 1, 0, 2))
-        for col in ("parameter", "unit", "default", "typical", "range", "kind"):
+        for col in ("parameter", "unit", "default", "typical", "range", "valid", "kind"):
             t.add_column(col, no_wrap=True)
         for o in e["options"]:
-            t.add_row(o, "", "", "", "", "option")
+            t.add_row(o, "", "", "", "", "", "option")
         for q in e["parameters"]:
-            rng = q["range"]
+            rng, valid = q["range"], q.get("valid")
             t.add_row(q["name"], q["unit"], _fmt(q["default"]), _fmt(q["typical"]),
-                      "" if rng is None else f"{_fmt(rng[0])} .. {_fmt(rng[1])}", q["kind"])
+                      "" if rng is None else f"{_fmt(rng[0])} .. {_fmt(rng[1])}",
+                      "any" if valid is None else
+                      f"{_fmt(valid[0]) or '-inf'} .. {_fmt(valid[1]) or 'inf'}", q["kind"])
         out.print(t)
         for q in e["parameters"]:
             out.print(f"  {q['name']}: {q['description']}")

@@ -94,8 +94,11 @@ class Param:
 
     ``default`` is the neutral value (the effect does nothing there); ``typical`` a realistic
     size for a fleet that has the effect; ``range`` the realistic range ``(lo, hi)``;
-    ``kind`` ``"model"`` (physical, estimable) or ``"context"`` (supplied per row by the
-    caller, e.g. ``cycle``).
+    ``valid`` the documented valid range ``(lo, hi)`` (either end may be None: unbounded):
+    the values for which the model stays a physical engine; a value outside it is refused
+    when the effect is made, before any model is built (:class:`EffectSpecError` naming the
+    effect, the parameter and the range); ``kind`` ``"model"`` (physical, estimable) or
+    ``"context"`` (supplied per row by the caller, e.g. ``cycle``).
     """
 
     name: str
@@ -105,10 +108,36 @@ class Param:
     typical: float | None = None
     range: tuple | None = None
     kind: str = "model"
+    valid: tuple | None = None
 
     def __post_init__(self):
         if self.kind not in PARAM_KINDS:
             raise ValueError(f"parameter {self.name}: kind must be one of {PARAM_KINDS}")
+        if self.valid is not None:
+            lo, hi = self.valid
+            if not ((lo is None or lo <= self.default) and (hi is None or self.default <= hi)):
+                raise ValueError(f"parameter {self.name}: default {self.default} outside its"
+                                 f" valid range {self.valid}")
+
+    def check(self, effect: str, value: float) -> None:
+        """``value`` inside :attr:`valid`, else an :class:`EffectSpecError`."""
+        if self.valid is None:
+            return
+        lo, hi = self.valid
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            unit = "" if self.unit in ("-", "") else f" {self.unit}"
+            raise EffectSpecError(f"effect {effect}: parameter {self.name} = {value:g} is"
+                                  f" outside its valid range {valid_text(self.valid)}{unit}"
+                                  " (see `hyprog effects`)")
+
+
+def valid_text(valid: tuple | None) -> str:
+    """``[lo, hi]`` with unbounded ends written as -inf / inf."""
+    if valid is None:
+        return "(-inf, inf)"
+    lo, hi = valid
+    return (f"{'(-inf' if lo is None else f'[{lo:g}'}, "
+            f"{'inf)' if hi is None else f'{hi:g}]'}")
 
 
 class EffectSpecError(InputError):
@@ -170,6 +199,7 @@ class Effect:
             if not math.isfinite(v):
                 raise EffectSpecError(f"effect {self.name}: parameter {q.name!r} must be"
                                       f" finite, got {v!r}")
+            q.check(self.name, v)
             self.values[q.name] = v
 
     # ---------------------------------------------------------------- steady effects
@@ -217,7 +247,8 @@ class Effect:
             "options": list(cls.options),
             "parameters": [
                 {"name": q.name, "unit": q.unit, "default": q.default, "typical": q.typical,
-                 "range": list(q.range) if q.range is not None else None, "kind": q.kind,
+                 "range": list(q.range) if q.range is not None else None,
+                 "valid": list(q.valid) if q.valid is not None else None, "kind": q.kind,
                  "description": q.description}
                 for q in cls.params
             ],

@@ -2,6 +2,12 @@
 
 Every effect is off by default: at its parameters' defaults it leaves every output unchanged.
 ``hyprog effects`` lists them with their parameters, units, realistic sizes and signatures.
+Each parameter also has a documented *valid* range (``Param.valid``), wider than the realistic
+one: bleed at most 10 % of W25 (+-2 % per 10,000 ft), HP off-take at most 1 MW, Reynolds
+exponent 0-0.5 and flow ratio 0-2, intake losses up to 10 %, nozzle areas within +-20 %, a
+sensor gain within +-50 %, a gain drift within +-1 % per cycle, time constants 0-30 s (spool)
+and 0-3600 s (thermal). A value outside it is refused with the effect and parameter named
+before a model variant is compiled.
 
 =================  =====================================================================
 effect             physics
@@ -67,9 +73,10 @@ class CustomerBleed(Effect):
     description = ("Customer (aircraft) bleed from the HPC exit, a fraction of HPC inlet flow "
                    "that may follow a schedule in altitude.")
     params = (
-        Param("f0", "-", 0.0, "bleed fraction of W25 at sea level", 0.015, (0.0, 0.04)),
+        Param("f0", "-", 0.0, "bleed fraction of W25 at sea level", 0.015, (0.0, 0.04),
+              valid=(0.0, 0.10)),
         Param("f_alt", "1/(10,000 ft)", 0.0, "change of the fraction per 10,000 ft", 0.002,
-              (-0.005, 0.005)),
+              (-0.005, 0.005), valid=(-0.02, 0.02)),
     )
     moves = ("Wf", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
@@ -86,7 +93,8 @@ class CustomerBleed(Effect):
 class HPOfftake(Effect):
     name = "hp_offtake"
     description = "Shaft power taken from the HP spool by the accessory gearbox."
-    params = (Param("P_kw", "kW", 0.0, "HP shaft power extraction", 150.0, (0.0, 400.0)),)
+    params = (Param("P_kw", "kW", 0.0, "HP shaft power extraction", 150.0, (0.0, 400.0),
+                    valid=(0.0, 1000.0)),)
     moves = ("Wf", "Nc", "T24", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
@@ -103,9 +111,10 @@ class Reynolds(Effect):
     description = ("Reynolds-number index effect on the efficiency and flow capacity of the "
                    "fan, LPC, HPC, HPT and LPT (losses grow at altitude).")
     params = (
-        Param("n", "-", 0.0, "loss exponent: (1 - eta) ~ RNI^-n", 0.05, (0.0, 0.2)),
+        Param("n", "-", 0.0, "loss exponent: (1 - eta) ~ RNI^-n", 0.05, (0.0, 0.2),
+              valid=(0.0, 0.5)),
         Param("flow_ratio", "-", 0.5, "flow-capacity change / efficiency change", 0.5,
-              (0.0, 1.0)),
+              (0.0, 1.0), valid=(0.0, 2.0)),
     )
     moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "P50")
     signature = {"SLS": {"Wf": 0, "T48": 0, "T50": 0, "Nc": 0},
@@ -130,8 +139,10 @@ class InletLoss(Effect):
     name = "inlet_loss"
     description = "Extra intake total-pressure loss, constant plus a ram part ~ Mach^2."
     params = (
-        Param("dp", "-", 0.0, "fractional loss of P2 at Mach 0", 0.005, (0.0, 0.02)),
-        Param("dp_ram", "-", 0.0, "additional fractional loss per Mach^2", 0.005, (0.0, 0.02)),
+        Param("dp", "-", 0.0, "fractional loss of P2 at Mach 0", 0.005, (0.0, 0.02),
+              valid=(0.0, 0.10)),
+        Param("dp_ram", "-", 0.0, "additional fractional loss per Mach^2", 0.005, (0.0, 0.02),
+              valid=(0.0, 0.10)),
     )
     moves = ("Wf", "T50", "P15", "P2", "P21", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"P2": -1, "P21": -1, "P30": -1, "P50": -1},
@@ -150,9 +161,9 @@ class NozzleArea(Effect):
     description = "Change of the core (A8) and bypass (A18) nozzle throat areas."
     params = (
         Param("dA8", "-", 0.0, "fractional change of the core nozzle throat area", 0.02,
-              (-0.05, 0.05)),
+              (-0.05, 0.05), valid=(-0.2, 0.2)),
         Param("dA18", "-", 0.0, "fractional change of the bypass nozzle throat area", 0.0,
-              (-0.05, 0.05)),
+              (-0.05, 0.05), valid=(-0.2, 0.2)),
     )
     moves = ("Wf", "Nc", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"P50": -1, "T50": -1}, "CRZ": {"P50": -1, "T50": -1}}
@@ -207,7 +218,8 @@ class SensorBias(SensorEffect):
     description = "Offset and gain error of one sensor: x <- x (1 + gain) + offset."
     params = (
         Param("offset", "channel unit", 0.0, "additive offset", None, None),
-        Param("gain", "-", 0.0, "relative gain error", 0.005, (-0.02, 0.02)),
+        Param("gain", "-", 0.0, "relative gain error", 0.005, (-0.02, 0.02),
+              valid=(-0.5, 0.5)),
     )
 
     def reading(self, value, p):
@@ -220,7 +232,7 @@ class SensorDrift(SensorEffect):
     description = "A sensor gain that drifts with use: x <- x (1 + rate cycle)."
     params = (
         Param("rate", "1/cycle", 0.0, "relative gain change per flight cycle", 1e-4,
-              (-5e-4, 5e-4)),
+              (-5e-4, 5e-4), valid=(-1e-2, 1e-2)),
         Param("cycle", "cycle", 0.0, "flight cycle (context: supplied per row)", None, None,
               kind="context"),
     )
@@ -241,9 +253,10 @@ class Dynamics(Effect):
                    "state with the rotor time constant, temperatures with the heat-soak time "
                    "constant (applied to each flight's output series).")
     params = (
-        Param("tau_spool", "s", 0.0, "rotor (spool) time constant", 1.5, (0.5, 4.0)),
+        Param("tau_spool", "s", 0.0, "rotor (spool) time constant", 1.5, (0.5, 4.0),
+              valid=(0.0, 30.0)),
         Param("tau_thermal", "s", 0.0, "heat-soak time constant of the temperatures", 60.0,
-              (10.0, 300.0)),
+              (10.0, 300.0), valid=(0.0, 3600.0)),
     )
     moves = ("Nf", "Nc", "Wf", "T24", "T30", "T40", "T48", "T50", "P30", "P50")
     signature = {"SLS": {}, "CRZ": {}}  # a steady point is its own steady state
