@@ -337,9 +337,10 @@ def check_output_dir(out: Path) -> None:
                          " 'calibration' entry); choose another output")
 
 
-def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict) -> None:
-    """The stored unit ``unit`` of ``out`` was computed with these settings from this input
-    (its own metadata, not the first file's); InputError naming what differs."""
+def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | None) -> None:
+    """The stored unit ``unit`` of ``out`` was computed with these settings and, unless
+    ``record`` is None (a unit this run does not calibrate), from this input (its own
+    metadata, not the first file's); InputError naming what differs."""
     part = out / f"unit={unit}" / datasets.PARQUET_PART
     stored = datasets.read_metadata(part).get("calibration") or {}
     diff = _first_difference({k: v for k, v in stored.items() if k != "input"},
@@ -347,6 +348,8 @@ def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict) -> N
     if diff is not None:
         raise InputError(f"{out}: unit {unit} was calibrated with other settings ({diff});"
                          " choose another output or delete it")
+    if record is None:
+        return
     old = stored.get("input") or {}
     if old.get("sha256") != record["sha256"]:
         what = (f"{old.get('rows')} rows there, {record['rows']} now"
@@ -432,6 +435,8 @@ def _calibrate(run, data, source, df_all, meta, calib_meta, lengths, out, jobs, 
     done_before = set(datasets.written_units(out)) if out is not None else set()
     records, todo = {}, {}
     model = None
+    for u in sorted(done_before - set(lengths)):  # the folder holds one set of settings
+        check_resume_unit(out, u, calib_meta, None)
     for u, frame in _units_of(data, df_all, lengths):
         series = prepare_unit(frame, setup, source)  # bad input: an error before any work
         records[u] = input_record(frame, u, series.sensors)
