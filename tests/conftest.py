@@ -64,3 +64,83 @@ def interpreted_model(model):
 def make_w():
     """``make_w([(alt, Mach, TRA[, dT_isa]), ...])`` -> (N, 4) w with ISA T2 in degR."""
     return w_rows
+
+
+# ---------------------------------------------------------------------------------------------
+# prognostics: synthetic feature tables (no engine model)
+# ---------------------------------------------------------------------------------------------
+
+PROGNOSTICS_THETA = ("HPT_eff_mod", "LPT_eff_mod", "LPT_flow_mod")  # ds02's calibration
+
+
+def synthetic_features(units=(1, 2, 3, 4, 5, 6), test_units=(5, 6), cycles=(18, 30),
+                       samples=(8, 14), seed=0):
+    """A feature table with every column ``hyprog calibrate`` writes (w, x_s, x_s_hat, x_v,
+    x_v_hat, true theta, three ``<q>_hat`` and ``<q>_hat_std``, RUL) and its metadata.
+
+    Each unit lives ``U(cycles)`` cycles of ``U(samples)`` samples; its health ``h = c / EOL``
+    moves the sensors and theta, so RUL is learnable; operating conditions are random per
+    sample. Returns ``(df, metadata)`` with ``dev_units`` / ``test_units``.
+    """
+    import pandas as pd
+
+    from engine_model.channels import THETA_NAMES, XS_NAMES, XV_NAMES
+
+    rng = np.random.default_rng(seed)
+    frames = []
+    for u in units:
+        eol = int(rng.integers(cycles[0], cycles[1] + 1))
+        for c in range(1, eol + 1):
+            m = int(rng.integers(samples[0], samples[1] + 1))
+            h = c / eol
+            d = {"unit": np.full(m, u), "cycle": np.full(m, c), "t": 10.0 * np.arange(m),
+                 "RUL": np.full(m, float(eol - c))}
+            d["alt"] = rng.uniform(0.0, 30000.0, m)
+            d["Mach"] = rng.uniform(0.2, 0.8, m)
+            d["TRA"] = rng.uniform(60.0, 90.0, m)
+            d["T2"] = 518.67 - 0.0036 * d["alt"] + 30.0 * d["Mach"] ** 2
+            op = d["TRA"] / 90.0 - d["alt"] / 6e4
+            for j, s in enumerate(XS_NAMES):
+                d[s + "_hat"] = (1 + 0.1 * j) * op + 0.5 * h * (1 + j % 3)
+                d[s] = d[s + "_hat"] + rng.normal(0.0, 0.05, m)
+            for j, s in enumerate(XV_NAMES):
+                d[s] = (1 + 0.2 * j) * op - 0.3 * h
+                d[s + "_hat"] = d[s] + rng.normal(0.0, 0.01, m)
+            for q in THETA_NAMES:
+                d[q] = np.full(m, -0.01 * h * h if q in PROGNOSTICS_THETA else 0.0)
+            for q in PROGNOSTICS_THETA:
+                d[q + "_hat"] = d[q] + rng.normal(0.0, 5e-4, m)
+                d[q + "_hat_std"] = np.full(m, 5e-4)
+            frames.append(pd.DataFrame(d))
+    df = pd.concat(frames, ignore_index=True)
+    meta = {"dev_units": [int(u) for u in units if u not in test_units],
+            "test_units": [int(u) for u in test_units]}
+    return df, meta
+
+
+@pytest.fixture(scope="session")
+def make_features():
+    """``make_features(**kw)`` -> ``(df, metadata)`` of :func:`synthetic_features`."""
+    return synthetic_features
+
+
+@pytest.fixture(scope="session")
+def features_parquet(tmp_path_factory):
+    """The default synthetic feature table written as hyprog parquet (with its metadata)."""
+    from engine_model.datasets import write_parquet
+
+    df, meta = synthetic_features()
+    return write_parquet(df, tmp_path_factory.mktemp("features") / "features.parquet", meta)
+
+
+@pytest.fixture
+def torch_one_thread():
+    """Torch on one thread for the test (restored after). The tests' networks are tiny, and on
+    a shared CPU OpenMP's two spinning threads can be 20x slower than one; bit-identity holds
+    for a fixed thread count either way."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
