@@ -149,6 +149,33 @@ def test_a_second_writer_is_refused_and_a_stale_lock_is_taken_over(runner, tmp_p
     assert not lock_path(out).exists()
 
 
+def test_two_real_runs_into_one_output(runner, tmp_path, small):
+    """A running ``hyprog calibrate`` holds --out: a second run is refused while it runs;
+    SIGTERM ends the first cleanly (exit 143, lock released, only complete units)."""
+    data = write(*small, tmp_path / "fleet")
+    out = tmp_path / "features"
+    first = subprocess.Popen([sys.executable, "-c", "from cli.main import app; app()",
+                              "calibrate", str(data), "--drift", "0.02", "--out", str(out)],
+                             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not lock_path(out).exists() and first.poll() is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert first.poll() is None, first.stderr.read().decode()
+        second = run(runner, "calibrate", data, "--drift", "0.01", "--out", out)
+        assert_error(second, "another hyprog run", f"process {first.pid}")
+        first.send_signal(signal.SIGTERM)
+        assert first.wait(timeout=60) in (0, 128 + signal.SIGTERM)
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    assert not lock_path(out).exists()
+    for d in out.iterdir() if out.exists() else []:
+        assert (d / datasets.PARQUET_PART).is_file() or d.name.startswith("."), d
+
+
 def test_a_folder_never_mixes_settings(runner, tmp_path, small):
     data = write(*small, tmp_path / "fleet")
     out = tmp_path / "features"
@@ -218,6 +245,28 @@ def test_theta_at_a_bound_and_sensors_used_are_reported(runner, tmp_path, small)
     assert "warning:" not in r.stdout
     assert any(line.startswith("warning: ") and "at its bound" in line
                for line in r.stderr.splitlines())
+
+
+def test_samples_that_did_not_converge_are_counted_in_the_text_report(runner, tmp_path,
+                                                                      monkeypatch):
+    import calibration.fleet
+    from calibration import CalibrationSetup
+
+    def fake(*args, **kwargs):
+        run_ = calibration.fleet.FleetRun(method="ukf", setup=CalibrationSetup(), options={},
+                                          sensors=["Wf", "Nf"], seconds=1.0)
+        run_.units = {1: {"samples": 100, "seconds": 1.0, "n_nonconverged": 3,
+                          "unobservable": [], "sensors": ["Wf", "Nf"], "warnings": []},
+                      2: {"samples": 50, "seconds": 1.0, "n_nonconverged": 0,
+                          "unobservable": [], "sensors": ["Wf", "Nf"], "warnings": []}}
+        return run_
+
+    monkeypatch.setattr(calibration.fleet, "calibrate_fleet", fake)
+    r = run(runner, "calibrate", TINY, "--out", tmp_path / "f")
+    assert r.exit_code == 0, r.stderr
+    assert "3 of 150 samples did not converge (unit 1: 3)" in r.stdout
+    r = run(runner, "calibrate", TINY, "--out", tmp_path / "f", "--json")
+    assert json.loads(r.stdout)["n_nonconverged"] == 3
 
 
 # ------------------------------------------------------------------------------------------
