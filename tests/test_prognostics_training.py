@@ -239,14 +239,14 @@ def test_an_edited_manifest_is_refused(trained, tmp_path):
         load_model(d)
 
 
-def _rewrite(d, **changes):
-    """Change manifest fields and re-sign it (as another hyprog would have written it)."""
-    from prognostics.checkpoint import _canonical  # noqa: PLC2701 (same package's test)
-
+def resign_manifest(d, **changes):
+    """Change manifest fields and re-sign it as the checkpoint docstring specifies (SHA-256 of
+    the canonical JSON: sorted keys, no spaces), as another hyprog would have written it."""
     body = json.loads((d / MANIFEST).read_text())
     body.pop("sha256")
     body.update(changes)
-    body["sha256"] = sha256_bytes(_canonical(body))
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    body["sha256"] = sha256_bytes(canonical.encode())
     (d / MANIFEST).write_text(json.dumps(body))
 
 
@@ -272,7 +272,7 @@ def test_foreign_files_are_refused(trained, tmp_path):
 def test_another_format_version_is_refused(trained, tmp_path):
     _, path, _ = trained
     d = _copy(path, tmp_path)
-    _rewrite(d, format_version=99, hyprog_version="9.9.9")
+    resign_manifest(d, format_version=99, hyprog_version="9.9.9")
     with pytest.raises(InputError, match="model format version 99 .* retrain"):
         load_model(d)
 
@@ -280,7 +280,7 @@ def test_another_format_version_is_refused(trained, tmp_path):
 def test_another_hyprog_version_loads_with_a_warning(trained, tmp_path):
     m, path, df = trained
     d = _copy(path, tmp_path)
-    _rewrite(d, hyprog_version="0.0.1")
+    resign_manifest(d, hyprog_version="0.0.1")
     with pytest.warns(UserWarning, match="written by hyprog 0.0.1"):
         back = load_model(d)
     assert back.info["hyprog_version"] == "0.0.1"
@@ -294,6 +294,6 @@ def test_weights_that_do_not_fit_the_network_are_refused(trained, tmp_path):
     d = _copy(path, tmp_path)
     body = json.loads((d / MANIFEST).read_text())
     cfg = dict(body["config"], window=9)
-    _rewrite(d, config=cfg)
+    resign_manifest(d, config=cfg)
     with pytest.raises(InputError, match="weights do not fit the network"):
         load_model(d)

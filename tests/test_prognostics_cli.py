@@ -1,0 +1,237 @@
+"""``hyprog train / evaluate / predict / experiment paper`` through the CLI on a tiny
+synthetic feature table: the round trip, the resumable experiment, and bad input (one
+``error:`` line naming the file or column, non-zero exit, nothing left behind).
+
+Exit codes: only ``!= 0`` is asserted (the CLI's code for bad input vs failed computation is
+set in cli.common).
+"""
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+from engine_model.datasets import read_dataset, write_parquet
+from tests.test_prognostics_training import resign_manifest
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
+
+FAST = ["--epochs", "2", "--device", "cpu", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def runner():
+    return CliRunner()
+
+
+def run(runner, *args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def ok(result):
+    assert result.exit_code == 0, (result.exit_code, result.stdout, result.stderr,
+                                   result.exception)
+    return result
+
+
+def assert_user_error(result, *fragments):
+    """Non-zero exit, one 'error: ...' line on stderr naming the culprit, no traceback."""
+    assert result.exit_code != 0, (result.stdout, result.stderr)
+    assert isinstance(result.exception, SystemExit), repr(result.exception)
+    err = result.stderr
+    assert err.startswith("error: "), err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err + result.stdout
+    for f in fragments:
+        assert f in err, (f, err)
+
+
+def assert_nothing_left(directory, *names):
+    for n in names:
+        assert not (directory / n).exists(), n
+    assert not [p.name for p in directory.iterdir() if ".tmp-" in p.name or ".old-" in p.name]
+
+
+@pytest.fixture(scope="module")
+def model_dir(runner, features_parquet, tmp_path_factory):
+    """A CNN ensemble of two seeds with a conformal unit, trained through the CLI."""
+    out = tmp_path_factory.mktemp("cli") / "cnn"
+    r = ok(run(runner, "train", features_parquet, "--model", "cnn", "--inputs", "hybrid",
+               "--window", "8", "--ensemble", "2", "--conformal-units", "4", "--json", *FAST,
+               "--out", out))
+    rep = json.loads(r.stdout)
+    assert rep["window"] == 8 and len(rep["columns"]) == 50
+    assert [m["seed"] for m in rep["members"]] == [0, 1]
+    assert rep["conformal"]["units"] == [4]
+    return out
+
+
+def test_train_evaluate_predict_round_trip(runner, model_dir, features_parquet, tmp_path):
+    r = ok(run(runner, "evaluate", model_dir, features_parquet, "--json"))
+    m = json.loads(r.stdout)
+    assert set(m["samples"]["units"]) == {"5", "6"}  # the metadata's test units
+    assert set(m["last"]["units"]) == {"5", "6"}
+    assert m["samples"]["overall"]["rmse"] > 0 and "coverage" in m["samples"]["overall"]
+    assert set(m["horizon"]["units"]) == {"5", "6"}
+    table = ok(run(runner, "evaluate", model_dir, features_parquet)).stdout
+    assert "CNN hybrid" in table and "all" in table  # the title and the overall row
+
+    out = tmp_path / "preds.csv"
+    r = ok(run(runner, "predict", model_dir, features_parquet, "--units", "5", "--out", out,
+               "--json"))
+    rep = json.loads(r.stdout)
+    pred = pd.read_csv(out)
+    pc = pd.read_csv(tmp_path / "preds.per_cycle.csv")
+    df, _ = read_dataset(features_parquet)
+    n5 = int((df.unit == 5).sum())
+    assert rep["samples"] == len(pred) == n5 - 7  # every sample that ends a window of 8
+    assert {"RUL_pred", "RUL_std", "RUL_lower", "RUL_upper"} <= set(pred.columns)
+    assert rep["cycles"] == len(pc) == pred.cycle.nunique()
+    # evaluate's per-unit RMSE is the one of the written predictions
+    d = pred.RUL - pred.RUL_pred
+    assert m["samples"]["units"]["5"]["rmse"] == pytest.approx(np.sqrt(np.mean(d * d)))
+
+
+def test_train_prints_the_parameter_count(runner, features_parquet, tmp_path):
+    r = ok(run(runner, "train", features_parquet, "--model", "fnn", "--inputs", "data-driven",
+               *FAST, "--out", tmp_path / "fnn"))
+    assert "FNN on 20 inputs (data-driven), window 1: 94,701 trainable parameters" in r.stdout
+    assert (tmp_path / "fnn" / "model.json").is_file()
+
+
+def test_experiment_paper_runs_and_resumes_from_its_cache(runner, features_parquet, tmp_path):
+    out = tmp_path / "exp"
+    args = ["experiment", "paper", "--data", features_parquet, "--out", out, "--seeds", "1",
+            "--epochs", "1", "--ablations", "small,calibration", "--small-units", "1,2",
+            "--device", "cpu", "--json"]
+    first = json.loads(ok(run(runner, *args)).stdout)
+    # main 2 models x 2 sets, small 2 sets, calibration 4 perturbations; one seed each
+    assert first["runs"] == 10 and first["trained"] == 10 and first["cached"] == 0
+    rows = pd.read_csv(out / "runs.csv")
+    assert {"model", "inputs", "seed", "rmse", "score"} <= set(rows.columns)
+    assert len(rows) == 11 and rows.part.tolist().count("baseline") == 1
+    assert np.isfinite(rows.rmse).all()
+    md = (out / "tables.md").read_text()
+    for title in ("Main table", "Ablation I", "Ablation IV", "physics baseline",
+                  "The paper's claims"):
+        assert title in md
+    figures = {p.name for p in (out / "figures").glob("*.png")}
+    assert {"theta_hat.png", "training_curves.png", "rul_baseline.png",
+            "rul_main_cnn_hybrid.png"} <= figures
+    second = json.loads(ok(run(runner, *args)).stdout)
+    assert second["trained"] == 0 and second["cached"] == 10
+    assert pd.read_csv(out / "runs.csv").drop(columns="seconds").equals(
+        rows.drop(columns="seconds"))
+    # an interrupted run (no result.json) is the only one redone
+    key = rows[rows.part == "small"].key.iloc[0]
+    (out / "runs" / key / "result.json").unlink()
+    third = json.loads(ok(run(runner, *args)).stdout)
+    assert third["trained"] == 1 and third["cached"] == 9
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input
+# ---------------------------------------------------------------------------------------------
+
+
+def test_missing_file(runner, tmp_path, model_dir):
+    r = run(runner, "train", tmp_path / "nope.parquet", *FAST, "--out", tmp_path / "m")
+    assert_user_error(r, "nope.parquet")
+    assert_nothing_left(tmp_path, "m")
+    assert_user_error(run(runner, "evaluate", tmp_path / "no-model", tmp_path / "x.parquet"),
+                      "no-model")
+    assert_user_error(run(runner, "predict", model_dir, tmp_path / "nope.parquet", "--out",
+                          tmp_path / "p.csv"), "nope.parquet")
+    assert_nothing_left(tmp_path, "p.csv", "p.per_cycle.csv")
+
+
+def test_ensemble_zero_and_a_failed_training_leave_nothing(runner, features_parquet, tmp_path):
+    assert_user_error(run(runner, "train", features_parquet, "--ensemble", "0", *FAST,
+                          "--out", tmp_path / "m"), "--ensemble 0")
+    assert_user_error(run(runner, "train", features_parquet, "--units", "1,99", *FAST,
+                          "--out", tmp_path / "m"), "99")
+    assert_user_error(run(runner, "train", features_parquet, "--inputs", "hybrid+htBleed",
+                          *FAST, "--out", tmp_path / "m"), "htBleed")
+    assert_user_error(run(runner, "train", features_parquet, "--model", "lstm", *FAST,
+                          "--out", tmp_path / "m"), "lstm")
+    assert_nothing_left(tmp_path, "m")
+
+
+def test_train_refuses_to_overwrite_a_foreign_directory_before_training(runner,
+                                                                        features_parquet,
+                                                                        tmp_path):
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "keep.txt").write_text("mine")
+    r = run(runner, "train", features_parquet, *FAST, "--out", tmp_path / "data")
+    assert_user_error(r, "not a hyprog model directory")
+    assert (tmp_path / "data" / "keep.txt").read_text() == "mine"
+
+
+def test_a_table_without_the_models_input_columns(runner, model_dir, features_parquet,
+                                                   tmp_path):
+    df, meta = read_dataset(features_parquet)
+    bad = write_parquet(df.drop(columns=["LPT_flow_mod_hat", "W21_hat"]),
+                        tmp_path / "raw.parquet", meta)
+    assert_user_error(run(runner, "evaluate", model_dir, bad), "raw.parquet",
+                      "W21_hat", "LPT_flow_mod_hat")
+    r = run(runner, "predict", model_dir, bad, "--out", tmp_path / "p.csv")
+    assert_user_error(r, "raw.parquet", "W21_hat")
+    assert_nothing_left(tmp_path, "p.csv", "p.per_cycle.csv")
+
+
+def test_a_tampered_checkpoint_is_refused(runner, model_dir, features_parquet, tmp_path):
+    d = tmp_path / "m"
+    shutil.copytree(model_dir, d)
+    blob = bytearray((d / "member-0.safetensors").read_bytes())
+    blob[-3] ^= 0x10
+    (d / "member-0.safetensors").write_bytes(bytes(blob))
+    assert_user_error(run(runner, "evaluate", d, features_parquet), "member-0.safetensors",
+                      "SHA-256 mismatch")
+    r = run(runner, "predict", d, features_parquet, "--out", tmp_path / "p.csv")
+    assert_user_error(r, "SHA-256 mismatch")
+    assert_nothing_left(tmp_path, "p.csv")
+
+
+def test_a_checkpoint_from_another_version(runner, model_dir, features_parquet, tmp_path):
+    """Another hyprog version with the same format version: a one-line warning, and it works;
+    another format version: refused (checkpoint module docstring)."""
+    d = tmp_path / "old"
+    shutil.copytree(model_dir, d)
+    resign_manifest(d, hyprog_version="0.0.1")
+    r = ok(run(runner, "evaluate", d, features_parquet, "--json"))
+    assert r.stderr.startswith("warning: ") and "written by hyprog 0.0.1" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert json.loads(r.stdout)["samples"]["overall"]["n"] > 0
+    resign_manifest(d, format_version=2)
+    assert_user_error(run(runner, "evaluate", d, features_parquet), "format version 2",
+                      "retrain")
+
+
+def test_a_test_unit_shorter_than_the_window_is_left_padded(runner, model_dir,
+                                                           features_parquet, tmp_path):
+    """Documented behaviour (prognostics.windows): one prediction at its last sample."""
+    df, meta = read_dataset(features_parquet)
+    short = df[(df.unit == 6) & (df.cycle == 1)].head(5)  # 5 samples, window 8
+    data = write_parquet(pd.concat([df[df.unit == 5], short]), tmp_path / "short.parquet",
+                         meta)
+    out = tmp_path / "p.csv"
+    ok(run(runner, "predict", model_dir, data, "--out", out))
+    pred = pd.read_csv(out)
+    assert (pred.unit == 6).sum() == 1
+    assert pred.loc[pred.unit == 6, "t"].item() == short.t.max()
+    m = json.loads(ok(run(runner, "evaluate", model_dir, data, "--json")).stdout)
+    assert m["samples"]["units"]["6"]["n"] == 1
+
+
+def test_experiment_bad_options(runner, features_parquet, tmp_path):
+    assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+                          tmp_path / "e", "--ablations", "noise"), "unknown ablation", "noise")
+    assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+                          tmp_path / "e", "--seeds", "0"), "--seeds 0")
+    assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+                          tmp_path / "e", "--ablations", "small"), "16")  # default 16,18,20
+    assert_nothing_left(tmp_path, "e")
