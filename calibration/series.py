@@ -15,7 +15,8 @@ import pandas as pd
 
 from engine_model.channels import W_NAMES
 from engine_model.sensor_noise import sigma_abs
-from engine_model.validation import InputError, check_w
+from engine_model.units import C_TO_K, R_PER_K
+from engine_model.validation import ENVELOPE, InputError, check_w
 
 from .setup import CalibrationSetup
 
@@ -76,6 +77,17 @@ def _numbers(df: pd.DataFrame, columns, where: str) -> np.ndarray:
     return df[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
 
 
+def _t2_hint(w: np.ndarray) -> str:
+    """`` (T2 looks like K ...)`` when the T2 column read as K or degC lies in the envelope
+    (the model reads degR), else empty."""
+    t2 = w[:, W_NAMES.index("T2")]
+    lo, hi = ENVELOPE.T2
+    for unit, as_r in (("K", t2 * R_PER_K), ("degC", (t2 + C_TO_K) * R_PER_K)):
+        if np.all((as_r >= lo) & (as_r <= hi)) and not np.all((t2 >= lo) & (t2 <= hi)):
+            return f" (column T2 looks like {unit}; the model reads degR)"
+    return ""
+
+
 def _check_duplicate_times(df: pd.DataFrame, where: str) -> None:
     """Two samples of one flight at the same time ``t`` are an error naming both rows."""
     keys = [k for k in ("cycle", "t") if k in df.columns]
@@ -131,7 +143,7 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
     try:
         check_w(w, np.asarray(index), "data")
     except InputError as e:
-        raise InputError(f"{where}{str(e).removeprefix('data: ')}") from None
+        raise InputError(f"{where}{str(e).removeprefix('data: ')}{_t2_hint(w)}") from None
     sigma = sigma_abs(y, sensors, scale=setup.noise_scale)
     n = len(df)
     cycle = df["cycle"].to_numpy() if "cycle" in df.columns else None

@@ -18,7 +18,6 @@ from cli.common import (
     echo_json,
     parse_list,
     parse_units,
-    terminate_as_exit,
     user_errors,
     warn,
 )
@@ -114,7 +113,7 @@ def run(
     from calibration.fleet import calibrate_fleet
     from engine_model.channels import XS_NAMES
 
-    with user_errors(), warnings.catch_warnings(record=True) as caught, terminate_as_exit():
+    with user_errors(), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnobservableWarning)
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
         opts = _options(method, window, stride, mode, hessian)

@@ -74,7 +74,8 @@ def import_cmapss(
                            " file)")
         datasets.check_output(out, directory=True, overwrite=overwrite)
         df, meta = datasets.read_cmapss(train, test, rul)
-        path = datasets.write_parquet(df, out, meta, overwrite=overwrite)
+        with datasets.output_lock(out):
+            path = datasets.write_parquet(df, out, meta, overwrite=overwrite)
     rep = {"out": str(path), "rows": len(df), "dev_units": meta["dev_units"],
            "test_units": meta["test_units"], "test_unit_offset": meta["test_unit_offset"]}
     if as_json:

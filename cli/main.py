@@ -7,7 +7,8 @@ Exit codes (one rule for every command, README "Bad input")
 - 2: bad input or usage: a file, column, row, unit or option value the user can fix, and
   click's own usage errors (unknown option, missing argument, a value of the wrong type).
   Exactly one ``error: ...`` line on stderr, no traceback, no box.
-- 130: interrupted (Ctrl-C).
+- 130: interrupted (Ctrl-C); 143: terminated (SIGTERM, turned into an exit so that locks
+  are released and worker processes ended, :func:`cli.common.terminate_as_exit`).
 
 The root group (:class:`HyprogGroup`) runs click in non-standalone mode and prints click's
 usage errors as that one line; :func:`cli.common.user_errors` does the same for the library's
@@ -22,7 +23,7 @@ import typer
 from typer.core import TyperGroup
 
 from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
-from cli.common import EXIT_USAGE, error_line
+from cli.common import EXIT_USAGE, error_line, terminate_as_exit
 
 
 def _click_class(name: str) -> type:
@@ -45,8 +46,9 @@ class HyprogGroup(TyperGroup):
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
              **extra):
         try:
-            rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
-                              standalone_mode=False, **extra)
+            with terminate_as_exit():  # SIGTERM: the finally blocks run (locks, workers)
+                rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                                  standalone_mode=False, **extra)
         except ClickException as e:
             if type(e).__name__ == "NoArgsIsHelpError":  # a bare group: its help
                 e.show()

@@ -50,18 +50,9 @@ def simulate(
             fleet.check_rate(rate)
         n_units = len(fleet.select_units(preset_obj, unit_list))
         out = datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
-        if as_json:
-            path, report = fleet.simulate(preset_obj, out, unit_list, rate, seed, effects,
-                                          record, fmt, overwrite=overwrite)
-        else:
-            from rich.progress import Progress
-
-            with Progress(console=console(stderr=True), transient=True) as bar:
-                task = bar.add_task(f"simulating {preset} ({n_units} units)", total=n_units)
-                path, report = fleet.simulate(
-                    preset_obj, out, unit_list, rate, seed, effects, record, fmt,
-                    progress=lambda k, n, rows: bar.update(task, completed=k),
-                    overwrite=overwrite)
+        with datasets.output_lock(out):  # one writer per output
+            path, report = _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects,
+                                record, fmt, overwrite, n_units, as_json)
     rep = {"out": str(path), "rows": report.total_rows, "seconds": round(report.seconds, 2),
            "units": {str(u): {"rows": report.rows[u], "eol": report.eol[u], "t_s": report.t_s[u],
                               "dropped": report.dropped[u]} for u in report.rows}}
@@ -70,3 +61,18 @@ def simulate(
         return
     console().print(f"wrote {path}: {rep['rows']:,} rows, {len(report.rows)} units in "
                     f"{report.seconds:.1f} s")
+
+
+def _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects, record, fmt,
+         overwrite, n_units, as_json):
+    """The simulation itself, with a progress bar on stderr in text mode."""
+    if as_json:
+        return fleet.simulate(preset_obj, out, unit_list, rate, seed, effects, record, fmt,
+                              overwrite=overwrite)
+    from rich.progress import Progress
+
+    with Progress(console=console(stderr=True), transient=True) as bar:
+        task = bar.add_task(f"simulating {preset} ({n_units} units)", total=n_units)
+        return fleet.simulate(preset_obj, out, unit_list, rate, seed, effects, record, fmt,
+                              progress=lambda k, n, rows: bar.update(task, completed=k),
+                              overwrite=overwrite)

@@ -211,6 +211,8 @@ def test_a_folder_never_mixes_settings(runner, tmp_path, small):
     (lambda d: d.assign(T30=d["T30"] / R_PER_K - 273.15), ("T30", "degC")),
     (lambda d: d.assign(Nc=d["Nc"] / 60.0), ("Nc", "rev/s")),
     (lambda d: d.assign(alt=d["alt"] * FT_TO_M), ("alt", "metres", "ft")),
+    (lambda d: d.assign(T2=d["T2"] / R_PER_K), ("T2", "looks like K")),
+    (lambda d: d.assign(T2=d["T2"] / R_PER_K - 273.15), ("T2", "looks like degC")),
 ])
 def test_data_in_the_wrong_unit_is_refused_before_estimating(runner, tmp_path, small, change,
                                                               fragments):
