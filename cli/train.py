@@ -33,7 +33,8 @@ def train(
     epochs: Annotated[int | None, typer.Option(
         "--epochs", help="Maximum epochs [60 FNN, 30 CNN].")] = None,
     val_units: Annotated[str | None, typer.Option(
-        "--val-units", help="Validate on these whole units instead of 10 % of the flights.")
+        "--val-units", help="Validate on these whole units instead of 10 % of the flights "
+        "(use it for C-MAPSS tables, which have one sample per cycle).")
     ] = None,
     conformal_units: Annotated[str | None, typer.Option(
         "--conformal-units", help="Development units held out to calibrate a conformal "

@@ -11,9 +11,10 @@ three ``Conv1d`` of kernel 10 with 10, 10 and 1 output channels, zero padding 's
 every map keeps length ``L``, ReLU after each; flatten (``L`` values); dense 50, ReLU; linear
 output. An even kernel cannot pad symmetrically: output ``i`` sees inputs ``i - 4 .. i + 5``
 (4 zeros left, 5 right, as PyTorch's ``padding='same'`` does). :class:`SameConv1d` gets it by
-padding 5 on both sides inside the convolution and dropping the first output, which is the
-same function as an explicit ``ZeroPad1d((4, 5))`` in front but about twice as fast on CPU
-(no padded copy of every batch; measured in ``benchmarks/prognostics_speed.py``).
+padding 5 on both sides inside the convolution and dropping the first output: the same
+function as an explicit ``ZeroPad1d((4, 5))`` in front (tested), without a padded copy of
+every batch and without the warning torch gives for ``padding='same'`` with an even kernel.
+On CPU the convolutions are nearly all of a training step (``benchmarks/prognostics_speed.py``).
 Parameters::
 
     (10 n + 1) 10 + (100 + 1) 10 + (100 + 1) + (L + 1) 50 + 51

@@ -13,7 +13,10 @@ Roles of the rows of a feature table (one integer per row, :data:`TRAIN` ...):
     cycles (whole flights) drawn without replacement by a seeded generator; a unit with one
     cycle keeps it for training.
   * ``"units"``: whole development units, the ``val_units`` given, or
-    ``max(1, round(0.1 n_u))`` of the ``n_u`` units drawn by the seed.
+    ``max(1, round(0.1 n_u))`` of the ``n_u`` units drawn by the seed. This is the mode for a
+    table with one sample per cycle (C-MAPSS): there a validation "flight" is one row, which
+    leaves one-row validation segments and cuts the training units into short runs (both
+    left-padded to the window, :mod:`.windows`).
 
 - **train**: the remaining development rows.
 

@@ -96,11 +96,14 @@ def test_train_evaluate_predict_round_trip(runner, model_dir, features_parquet, 
     assert m["samples"]["units"]["5"]["rmse"] == pytest.approx(np.sqrt(np.mean(d * d)))
 
 
-def test_train_prints_the_parameter_count(runner, features_parquet, tmp_path):
+def test_train_prints_the_parameter_count_and_a_progress_bar(runner, features_parquet,
+                                                             tmp_path):
     r = ok(run(runner, "train", features_parquet, "--model", "fnn", "--inputs", "data-driven",
-               *FAST, "--out", tmp_path / "fnn"))
+               "--epochs", "2", "--device", "cpu", "--out", tmp_path / "fnn"))
     assert "FNN on 20 inputs (data-driven), window 1: 94,701 trainable parameters" in r.stdout
     assert (tmp_path / "fnn" / "model.json").is_file()
+    # the bar (stderr) shows the running training and validation loss of every epoch
+    assert "fnn data-driven seed 0 epoch 2" in r.stderr and " val " in r.stderr
 
 
 def test_experiment_paper_runs_and_resumes_from_its_cache(runner, features_parquet, tmp_path):
