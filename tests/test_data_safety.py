@@ -329,6 +329,13 @@ def _children(pid: int) -> set[int]:
     return kids
 
 
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()[:200]
+    except OSError:
+        return "?"
+
+
 def _alive(pid: int) -> bool:
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
@@ -349,21 +356,23 @@ def test_workers_die_with_their_parent(tmp_path, sig):
         deadline = time.monotonic() + 120
         workers: set[int] = set()
         while time.monotonic() < deadline and proc.poll() is None:
-            # the pool's workers (spawned: children that are python processes, not the
-            # resource tracker, which also goes when its parent goes)
-            workers = _children(proc.pid)
-            if len(workers) >= 3:  # two workers and the resource tracker
+            # the pool's two workers (spawned: their command line runs spawn_main)
+            workers = {p for p in _children(proc.pid) if "spawn_main" in _cmdline(p)}
+            if len(workers) >= 2:
                 break
             time.sleep(0.2)
         assert proc.poll() is None and len(workers) >= 2, (workers, proc.poll())
         time.sleep(1.0)  # the workers import hyprog and load the model
         proc.send_signal(sig)
-        code = proc.wait(timeout=30)
-        assert code == (-signal.SIGKILL if sig == signal.SIGKILL else 128 + signal.SIGTERM)
+        code = proc.wait(timeout=60)
+        err = proc.stderr.read().decode()
+        assert code == (-signal.SIGKILL if sig == signal.SIGKILL else 128 + signal.SIGTERM), \
+            (code, err)
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and any(_alive(p) for p in workers):
             time.sleep(0.2)
-        assert not [p for p in workers if _alive(p)]
+        alive = {p: _cmdline(p) for p in workers if _alive(p)}
+        assert not alive, alive
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -372,7 +381,7 @@ def test_workers_die_with_their_parent(tmp_path, sig):
     assert all((d / datasets.PARQUET_PART).is_file() for d in units
                if d.name.startswith("unit=")), units
     if sig == signal.SIGTERM:
-        assert "Traceback" not in proc.stderr.read().decode()
+        assert "Traceback" not in err, err
         assert not lock_path(out).exists()
 
 
