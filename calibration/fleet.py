@@ -417,44 +417,47 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
                   "hyprog_version": datasets.hyprog_version()}
     run = FleetRun(method=method, setup=setup, options=options,
                    out=None if out is None else str(out))
+    records = check_inputs(data, df_all, lengths, setup, source, check_data)
+    run.sensors = list(records[min(records)]["sensors"])
     if out is None:
-        return _calibrate(run, data, source, df_all, meta, calib_meta, lengths, None, jobs,
-                          scheduler, keep_results, progress, check_data, t0)
+        return _calibrate(run, source, df_all, meta, calib_meta, lengths, records, None, jobs,
+                          scheduler, keep_results, progress, t0)
     out = Path(out)
     check_output_dir(out)
     with datasets.output_lock(out):
         check_output_dir(out)  # again, now that no other writer can change it
         datasets.remove_stale_temporaries(out)
-        return _calibrate(run, data, source, df_all, meta, calib_meta, lengths, out, jobs,
-                          scheduler, keep_results, progress, check_data, t0)
+        done_before = set(datasets.written_units(out))
+        for u in sorted(done_before):  # the folder holds one set of settings (and input)
+            check_resume_unit(out, u, calib_meta, records.get(u))
+        run.skipped = sorted(done_before & set(lengths))
+        todo = {u: n for u, n in lengths.items() if u not in done_before}
+        return _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs,
+                          scheduler, keep_results, progress, t0)
 
 
-def _calibrate(run, data, source, df_all, meta, calib_meta, lengths, out, jobs, scheduler,
-               keep_results, progress, check_data, t0) -> FleetRun:
-    setup, method, options = run.setup, run.method, run.options
-    done_before = set(datasets.written_units(out)) if out is not None else set()
-    records, todo = {}, {}
-    model = None
-    for u in sorted(done_before - set(lengths)):  # the folder holds one set of settings
-        check_resume_unit(out, u, calib_meta, None)
+def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
+                 check_data: bool = True) -> dict[int, dict]:
+    """Read and check every unit once, before any output is touched (module docstring):
+    :func:`series.prepare_unit` and, with ``check_data``, :func:`unit_check.check_units`.
+    Returns unit -> its input record (:func:`fingerprint.input_record`)."""
+    records, model = {}, None
     for u, frame in _units_of(data, df_all, lengths):
         series = prepare_unit(frame, setup, source)  # bad input: an error before any work
         records[u] = input_record(frame, u, series.sensors)
-        if u in done_before:
-            check_resume_unit(out, u, calib_meta, records[u])
-            run.skipped.append(u)
-            continue
-        todo[u] = lengths[u]
         if check_data:
             if model is None:
                 from .base import default_model
 
                 model = default_model()
             check_units(model, series, setup, source)
-    run.skipped.sort()
-    first = records[min(records)]
-    run.sensors = list(first["sensors"])
+    return records
 
+
+def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, scheduler,
+               keep_results, progress, t0) -> FleetRun:
+    """Estimate the units of ``todo`` and write each to ``out`` as it is done."""
+    setup, method, options = run.setup, run.method, run.options
     if scheduler is not None:
         ex = _Dask(scheduler, jobs)
         n_workers, threads = ex.n_workers, 1

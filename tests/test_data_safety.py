@@ -546,6 +546,7 @@ def test_no_failing_command_leaves_anything_behind(runner, tmp_path, small):
     (foreign / "notes.txt").write_text("keep")
     cases = _failing_commands(tmp_path, data, foreign)
     cases.append(["calibrate", data, "--out", tmp_path / "f"])  # kPa: refused
+    cases.append(["calibrate", data, "--out", tmp_path / "new" / "f"])  # no parent made
     for args in cases:
         before = tree(tmp_path)
         r = run(runner, *args)
