@@ -23,6 +23,7 @@ import typer
 from typer.core import TyperGroup
 
 from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
+from cli import discover as discover_cmd
 from cli.common import EXIT_USAGE, error_line, terminate_as_exit
 
 
@@ -79,6 +80,7 @@ app.add_typer(data.app, name="data")
 app.add_typer(calibrate.app, name="calibrate")
 app.command("simulate")(simulate.simulate)
 app.command("effects")(effects.effects)
+app.command("discover")(discover_cmd.discover)
 app.command("train")(train.train)
 app.command("evaluate")(evaluate.evaluate)
 app.command("predict")(predict.predict)

@@ -1,0 +1,97 @@
+"""``hyprog discover DATA --out DIR``: find what the calibrated model lacks, add it, and
+report the residual before and after (:mod:`calibration.discrepancy`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cli.common import CliError, console, echo_json, parse_list, parse_units, user_errors
+
+_METHODS = ("mhe", "ukf", "ekf", "map_cycle")
+
+
+def _drift(text: str | None):
+    if text is None or text == "mle":
+        return "mle"
+    try:
+        v = float(text)
+    except ValueError:
+        raise CliError(f"--drift {text}: expected 'mle' or a number") from None
+    if not v > 0:
+        raise CliError(f"--drift {text}: must be positive")
+    return v
+
+
+def discover(
+    data: Annotated[Path, typer.Argument(help="Dataset: parquet directory or N-CMAPSS h5.")],
+    out: Annotated[Path, typer.Option("--out", help="Report directory (discover.json, "
+                                      "discover.md, residuals.png).")],
+    method: Annotated[str, typer.Option("--method", help="Estimator of the null fit's warm "
+                                        "start: mhe, ukf, ekf or map_cycle.")] = "mhe",
+    candidates: Annotated[str | None, typer.Option(
+        "--candidates", help="Comma-separated effects to test [the library's steady and "
+        "sensor effects].")] = None,
+    alpha: Annotated[float, typer.Option("--alpha", help="Family-wise false-discovery level "
+                                         "per dataset.")] = 0.01,
+    max_effects: Annotated[int, typer.Option("--max-effects", help="Most effects to add.")]
+    = 3,
+    params: Annotated[str | None, typer.Option(
+        "--params", help="Health parameters to estimate [HPT_eff_mod,LPT_eff_mod,"
+        "LPT_flow_mod].")] = None,
+    sensors: Annotated[str | None, typer.Option("--sensors", help="Channels to use [all "
+                                                "x_s in the data].")] = None,
+    drift: Annotated[str | None, typer.Option(
+        "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle' [mle].")] = None,
+    units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
+                                              "[all].")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
+    = 0,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
+):
+    """Screen every candidate effect with score tests, confirm and add the significant
+    ones, and report what remains (verdict, effects with uncertainty, before/after)."""
+    with user_errors(data):
+        from calibration import CalibrationSetup
+        from calibration.discrepancy import DiscoverOptions
+        from calibration.discrepancy import discover as run
+        from calibration.discrepancy.candidates import check_names
+        from calibration.discrepancy.report import report_dict, write_report
+        from cli.common import check_choice, get_model
+        from engine_model.datasets import read_dataset
+
+        check_choice(method, "--method", _METHODS)
+        p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
+        kw = {k: v for k, v in {"params": p, "sensors": s}.items() if v is not None}
+        setup = CalibrationSetup(**kw)
+        opts = DiscoverOptions(method=method, candidates=parse_list(candidates,
+                                                                    "--candidates"),
+                               alpha=alpha, max_effects=max_effects, drift=_drift(drift),
+                               seed=seed)
+        check_names(opts.candidates)
+        df, _meta = read_dataset(data, units=parse_units(units))
+        if "unit" not in df.columns:
+            df = df.assign(unit=1)
+        if len(df) == 0:
+            raise CliError("no rows")
+        frames = [g for _, g in df.groupby("unit", sort=True)]
+        err = console(stderr=True)
+        say = (lambda msg: err.print(msg)) if (not as_json and err.is_terminal) else None
+        result = run(frames, setup, opts, base_model=get_model(), source=data, progress=say)
+        write_report(result, out)
+    if as_json:
+        echo_json(report_dict(result))
+        return
+    c = console()
+    c.print(f"verdict: {result.verdict}")
+    for f in result.found:
+        c.print(f"  added {f['spec']} (p = {f['p_value']:.3g})")
+    for a in result.ambiguous:
+        c.print(f"  ambiguous: {a['candidates'][0]} or {a['candidates'][1]}")
+    if result.unknown:
+        c.print(f"  unknown effect on {', '.join(result.unknown['channels'])}")
+    b, a = result.before, result.after
+    c.print(f"residual chi^2/dof ({b['on']}): {b['chi2_per_dof']:.3g} -> "
+            f"{a['chi2_per_dof']:.3g}; report in {out}")

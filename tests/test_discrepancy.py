@@ -1,0 +1,161 @@
+"""The discrepancy loop (calibration.discrepancy, ``hyprog discover``) on small simulated
+fleets: one unit of the ``tiny`` preset (12 flights, about 3,900 samples at 0.1 Hz).
+
+Realistic sizes used: a customer bleed of 1.5 % of HPC inlet flow (the effect's documented
+``typical``); in the score-versus-likelihood-ratio test a T48 offset of +3 degR (under one
+sigma of the channel's noise per sample: an instrumentation check misses it in one reading).
+
+Every model here is one compiled variant: the truth is built with the candidate model's
+steady effects (same names, so the same cached C code) with the bleed switched on.
+"""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from calibration import CalibrationSetup
+from calibration.discrepancy import DiscoverOptions, discover
+from calibration.discrepancy.candidates import (
+    STEADY_DEFAULT,
+    CandidateModel,
+    build_candidates,
+)
+from calibration.discrepancy.max_stat import screen
+from calibration.discrepancy.null_fit import Problem, fit, unit_data
+from calibration.discrepancy.score_test import efficient_scores
+from cli.main import app
+from engine_model import EngineModel, fleet
+from engine_model.effects import parse_effect_spec
+
+BLEED = 0.015
+SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
+FAST = dict(method="ukf", n_draws=5000)
+
+
+def _truth(model, **bleed):
+    effs = [parse_effect_spec(n) for n in STEADY_DEFAULT]
+    effs[0] = parse_effect_spec("customer_bleed:" + ",".join(f"{k}={v}" for k, v in
+                                                            bleed.items()))
+    return EngineModel(design=model.design, effects=effs)
+
+
+@pytest.fixture(scope="module")
+def bleed_fleet(model):
+    truth = _truth(model, f0=BLEED)
+    df, _, _ = fleet.simulate("tiny", units=[1], seed=7, model=truth,
+                              effects=[parse_effect_spec(f"customer_bleed:f0={BLEED}")])
+    return df
+
+
+@pytest.fixture(scope="module")
+def bleed_found(bleed_fleet, model):
+    return discover([bleed_fleet], SETUP, DiscoverOptions(drift=0.01, **FAST),
+                    base_model=model)
+
+
+def test_effect_in_the_truth_is_named_estimated_and_removed(bleed_found):
+    d = bleed_found
+    assert d.verdict == "explained"
+    assert [f["name"] for f in d.found] == ["customer_bleed"]
+    f = d.found[0]
+    lo, hi = f["ci95"]["f0"]
+    assert lo <= BLEED <= hi, f"f0 {f['params']['f0']} +- {f['std']['f0']}"
+    # the channels the bleed moves: residual RMSE cut by at least half
+    moved = [c for c in parse_effect_spec("customer_bleed").moves
+             if f["residual_before"][c] > 2.0]
+    assert len(moved) >= 5
+    for c in moved:
+        assert f["residual_after"][c] <= 0.5 * f["residual_before"][c], c
+    # the health estimate absorbed the bleed before and no longer does
+    te = d.theta_error
+    for q in SETUP.params:
+        assert abs(te["after"][q]["bias"]) < 0.1 * abs(te["before"][q]["bias"])
+        assert te["after"][q]["rmse"] < 2e-3
+
+
+def test_withheld_effect_is_an_unknown_effect_on_the_right_channels(bleed_fleet, model):
+    names = tuple(n for n in STEADY_DEFAULT if n != "customer_bleed") + ("sensor_bias",
+                                                                        "sensor_drift")
+    d = discover([bleed_fleet], SETUP, DiscoverOptions(drift=0.01, candidates=names, **FAST),
+                 base_model=model)
+    assert d.verdict == "unknown effect", (d.verdict, d.found)
+    assert not d.found
+    moves = set(parse_effect_spec("customer_bleed").moves)
+    ch = d.unknown["channels"]
+    # the most disturbed channel is one the bleed moves, and nearly all it moves are named
+    # (theta, fitted to the bleed's signature, spreads part of it to channels such as Nc)
+    assert ch[0] in moves
+    assert len(moves & set(ch)) >= 0.8 * len(moves)
+    assert set(d.unknown["hint"]) == set(ch)
+
+
+@pytest.mark.parametrize("seed", [3])  # a second no-effect fleet: the CLI test (seed 2)
+def test_nothing_missing_without_an_effect(model, seed):
+    df, _, _ = fleet.simulate("tiny", units=[2], seed=seed, model=model)
+    d = discover([df], SETUP, DiscoverOptions(drift="mle", seed=seed, **FAST),
+                 base_model=model)
+    assert d.verdict == "nothing missing", (d.found, d.unknown)
+    assert d.found == [] and d.screens[0]["p_crit"] < 0.01
+    assert 1e-4 < d.drift["q"] < 0.1
+
+
+def test_score_statistic_equals_the_likelihood_ratio_on_a_small_effect(model):
+    """Two flights; a T48 offset injected into the data: the efficient score statistic and the
+    brute-force likelihood ratio of the joint refit agree (locally equivalent tests)."""
+    df, _, _ = fleet.simulate("tiny", units=[1], seed=5, model=model)
+    df = df[df.cycle <= 2].copy()
+    df["T48"] += 3.0
+    units = [unit_data(df, SETUP)]
+    carried, tested = build_candidates(("sensor_bias", "customer_bleed"),
+                                       units[0].series.sensors)
+    cm = CandidateModel(carried, design=model.design)
+    pr = Problem(units, SETUP, cm)
+    null = fit(pr, [np.zeros((2, 3))], np.zeros(cm.n_phi))
+    sc = efficient_scores(pr, null, np.zeros(0, int))
+    res = screen(sc, tested, n_draws=2000)
+    for name in ("sensor_bias_T48", "customer_bleed"):
+        i = [c.name for c in tested].index(name)
+        c = tested[i]
+        alt = fit(pr, null.Theta, null.phi, c.index, xs=null.lin.x)
+        lr = 2 * (null.L - alt.L)
+        assert res.T[i] == pytest.approx(lr, rel=0.05, abs=0.5), name
+    assert res.T[[c.name for c in tested].index("sensor_bias_T48")] > 20
+
+
+def test_cli_discover_writes_the_report(tmp_path, model):
+    data = tmp_path / "clean"
+    fleet.simulate("tiny", out=data, units=[3], seed=2, model=model)
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(app, ["discover", str(data), "--out", str(out), "--method", "ukf",
+                                 "--drift", "0.01", "--json"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    assert rep["verdict"] == "nothing missing"
+    for k in ("found", "ambiguous", "unknown", "before", "after"):
+        assert k in rep
+    assert {p.name for p in out.iterdir()} == {"discover.json", "discover.md",
+                                               "residuals.png"}
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--alpha", "2"], "--alpha"),
+    (["--candidates", "nope"], "unknown effect"),
+    (["--candidates", "dynamics"], "series effect"),
+    (["--method", "kf"], "--method"),
+    (["--drift", "-1"], "--drift"),
+])
+def test_cli_discover_bad_input_is_one_line(tmp_path, args, msg):
+    r = CliRunner().invoke(app, ["discover", str(tmp_path / "none"), "--out",
+                                 str(tmp_path / "o"), *args])
+    assert r.exit_code == 2
+    lines = [x for x in r.output.splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:")
+    assert not (tmp_path / "o").exists()
+
+
+def test_cli_discover_missing_data(tmp_path):
+    r = CliRunner().invoke(app, ["discover", str(tmp_path / "nope"), "--out",
+                                 str(tmp_path / "o")])
+    assert r.exit_code == 2 and r.output.startswith("error:")
