@@ -48,22 +48,19 @@ class BatchEvaluator:
 
     def __call__(self, key: str, *args: np.ndarray) -> list[np.ndarray]:
         n = args[0].shape[1]
-        results: list[list[np.ndarray]] | None = None
-        for s0 in range(0, n, CHUNK):
-            s1 = min(n, s0 + CHUNK)
-            m = s1 - s0
-            nb = bucket(m)
-            padded = [pad_columns(a[:, s0:s1], nb) for a in args]
-            outs = self.mapped(key, nb)(*padded)
-            if not isinstance(outs, (list, tuple)):
-                outs = [outs]
-            outs = [np.asarray(o)[:, : o.shape[1] // nb * m] for o in outs]
-            if results is None:
-                results = [[o] for o in outs]
-            else:
-                for lst, o in zip(results, outs, strict=True):
-                    lst.append(o)
-        return [np.concatenate(lst, axis=1) for lst in results]
+        if n <= CHUNK:  # one call: the filters' few dozen points per step take this path
+            return self._call_padded(key, args, n)
+        parts = [self._call_padded(key, [a[:, s0:s0 + CHUNK] for a in args],
+                                   min(CHUNK, n - s0)) for s0 in range(0, n, CHUNK)]
+        return [np.concatenate(outs, axis=1) for outs in zip(*parts, strict=True)]
+
+    def _call_padded(self, key: str, args, m: int) -> list[np.ndarray]:
+        """Function ``key`` on ``m`` points padded to their bucket; padded columns dropped."""
+        nb = bucket(m)
+        outs = self.mapped(key, nb)(*[pad_columns(a, nb) for a in args])
+        if not isinstance(outs, (list, tuple)):
+            outs = [outs]
+        return [np.asarray(o)[:, : o.shape[1] // nb * m] for o in outs]
 
 
 def pad_columns(a: np.ndarray, n: int) -> np.ndarray:
@@ -71,7 +68,10 @@ def pad_columns(a: np.ndarray, n: int) -> np.ndarray:
     m = a.shape[1]
     if m == n:
         return a
-    return np.concatenate([a, np.repeat(a[:, -1:], n - m, axis=1)], axis=1)
+    out = np.empty((a.shape[0], n), dtype=a.dtype)
+    out[:, :m] = a
+    out[:, m:] = a[:, -1:]
+    return out
 
 
 def pad_rows(a: np.ndarray, n: int) -> np.ndarray:
@@ -79,4 +79,7 @@ def pad_rows(a: np.ndarray, n: int) -> np.ndarray:
     m = len(a)
     if m == n:
         return a
-    return np.concatenate([a, np.repeat(a[-1:], n - m, axis=0)], axis=0)
+    out = np.empty((n, *a.shape[1:]), dtype=a.dtype)
+    out[:m] = a
+    out[m:] = a[-1:]
+    return out
