@@ -238,3 +238,45 @@ def test_experiment_bad_options(runner, features_parquet, tmp_path):
     assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
                           tmp_path / "e", "--ablations", "small"), "16")  # default 16,18,20
     assert_nothing_left(tmp_path, "e")
+
+
+def test_cmapss_files_import_train_and_evaluate_unchanged(runner, tmp_path):
+    """C-MAPSS text (one sample per cycle, test units truncated, RUL file) -> hyprog table ->
+    train (data-driven plus C-MAPSS-only columns, whole validation units) -> evaluate; the
+    last-cycle truth of each test unit is its RUL-file value."""
+    rng = np.random.default_rng(3)
+
+    def lines(units, truncate=None):
+        out = []
+        for u, life in units.items():
+            for c in range(1, (truncate or {}).get(u, life) + 1):
+                h = c / life
+                settings = [rng.choice([0.0, 10.0, 35.0]), 0.6, 100.0]
+                sensors = [500.0 + 20 * h + rng.normal(0, 0.5) for _ in range(21)]
+                out.append(f"{u} {c} " + " ".join(f"{v:.4f}" for v in settings + sensors) + "  ")
+        return out
+
+    train = {1: 40, 2: 46, 3: 38, 4: 44}
+    test = {1: 42, 2: 40}
+    seen = {1: 25, 2: 18}  # observed cycles of the truncated test units
+    (tmp_path / "train_FD002.txt").write_text("\n".join(lines(train)) + "\n")
+    (tmp_path / "test_FD002.txt").write_text("\n".join(lines(test, seen)) + "\n")
+    (tmp_path / "RUL_FD002.txt").write_text(
+        "\n".join(f"{test[u] - seen[u]} " for u in test) + "\n")
+    data = tmp_path / "fd002.parquet"
+    ok(run(runner, "data", "import-cmapss", tmp_path / "train_FD002.txt", "--test",
+           tmp_path / "test_FD002.txt", "--rul", tmp_path / "RUL_FD002.txt", "--out", data))
+    df, meta = read_dataset(data)
+    assert len(meta["test_units"]) == 2
+    assert_user_error(run(runner, "train", data, "--inputs", "hybrid", *FAST, "--out",
+                          tmp_path / "m"), "xs_hat", "hyprog calibrate")
+    r = ok(run(runner, "train", data, "--inputs", "data-driven+phi,BPR", "--window", "5",
+               "--val-units", "4", *FAST, "--json", "--out", tmp_path / "m"))
+    cols = json.loads(r.stdout)["columns"]
+    assert cols[-2:] == ["phi", "BPR"] and "Ps30" in cols and "P30" in cols
+    m = json.loads(ok(run(runner, "evaluate", tmp_path / "m", data, "--json")).stdout)
+    last = m["last"]["units"]
+    assert sorted(e["RUL"] for e in last.values()) == sorted(
+        float(test[u] - seen[u]) for u in test)
+    assert sorted(e["cycle"] for e in last.values()) == sorted(seen.values())
+    assert m["samples"]["overall"]["n"] == sum(seen.values()) - 2 * 4  # windows of 5
