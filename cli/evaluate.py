@@ -28,12 +28,15 @@ def evaluate(
     features: Annotated[Path, typer.Argument(help="Feature table with the model's inputs "
                                              "and RUL.")],
     units: Annotated[str | None, typer.Option(
-        "--units", help="Units to evaluate [the metadata's test_units].")] = None,
+        "--units", help="Units to evaluate (default: the metadata's test_units).")] = None,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ):
     """RMSE, NASA score, interval coverage per test unit and overall, on every sample (the
-    paper's protocol) and at each unit's last cycle (C-MAPSS's); prediction horizon."""
+    paper's protocol) and at each unit's last cycle (C-MAPSS's); prediction horizon.
+
+    Example: hyprog evaluate models/cnn features.parquet --json
+    """
     from engine_model.datasets import read_dataset
 
     with user_errors(features):

@@ -33,14 +33,15 @@ def paper(
     seeds: Annotated[str, typer.Option(
         "--seeds", help="Main-table seeds: a count (5: seeds 0-4) or a list (0,3,7).")] = "5",
     ablation_seeds: Annotated[str | None, typer.Option(
-        "--ablation-seeds", help="Seeds of the ablations [the first 3 main seeds].")] = None,
+        "--ablation-seeds",
+        help="Seeds of the ablations (default: the first 3 main seeds).")] = None,
     ablations: Annotated[str, typer.Option(
         "--ablations", help="small, features, calibration, conformal (comma-separated), all "
         "or none.")] = "all",
     small_units: Annotated[str, typer.Option(
         "--small-units", help="Training units of ablation I.")] = "16,18,20",
     epochs: Annotated[int | None, typer.Option(
-        "--epochs", help="Maximum epochs of every run [60 FNN, 30 CNN].")] = None,
+        "--epochs", help="Maximum epochs of every run (default: 60 FNN, 30 CNN).")] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Conformal miscoverage.")] = 0.1,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
     no_baseline: Annotated[bool, typer.Option(
@@ -50,7 +51,11 @@ def paper(
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
 ):
     """Main table (FNN/CNN, data-driven vs hybrid), horizon, ablations I, III, IV, conformal
-    intervals and the physics baseline: Markdown + CSV tables and PNG figures in OUT."""
+    intervals and the physics baseline: Markdown + CSV tables and PNG figures in OUT. Every
+    training run is cached in OUT/runs: a rerun resumes where it stopped.
+
+    Example: hyprog experiment paper --data features.parquet --out results/paper --seeds 5
+    """
     from engine_model.datasets import read_dataset
     from prognostics.experiment import PARTS, ExperimentConfig, run_experiment
 

@@ -21,14 +21,18 @@ def predict(
     out: Annotated[Path, typer.Option(
         "--out", help="Per-sample predictions (.csv, else parquet); the per-cycle table goes "
         "to <stem>.per_cycle<suffix> beside it.")],
-    units: Annotated[str | None, typer.Option("--units", help="Units to predict [all].")
+    units: Annotated[str | None, typer.Option("--units", help="Units to predict (default: all).")
                      ] = None,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Predict the RUL of every sample that ends a full window (columns RUL_pred, RUL_std for
     an ensemble, RUL_lower / RUL_upper with a conformal interval) and its per-cycle mean,
-    min and max."""
+    min and max. A unit shorter than the window is left-padded with its first sample and
+    gets one prediction, at its last sample.
+
+    Example: hyprog predict models/cnn new_flights.parquet --out rul.csv
+    """
     from cli.evaluate import load_model_warned
     from engine_model.datasets import read_dataset
     from prognostics.metrics import per_cycle

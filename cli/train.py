@@ -21,17 +21,18 @@ def train(
     model: Annotated[str, typer.Option("--model", help="fnn or cnn.")] = "cnn",
     inputs: Annotated[str, typer.Option("--inputs", help=INPUTS_HELP)] = "hybrid",
     units: Annotated[str | None, typer.Option(
-        "--units", help="Development units to train on [the metadata's dev_units].")] = None,
+        "--units",
+        help="Development units to train on (default: the metadata's dev_units).")] = None,
     window: Annotated[int | None, typer.Option(
-        "--window", help="CNN window length [50]; the FNN takes one time step.")] = None,
+        "--window", help="CNN window length (default 50); the FNN takes one time step.")] = None,
     stride: Annotated[int, typer.Option("--stride", help="Window step.")] = 1,
     max_rul: Annotated[float | None, typer.Option(
-        "--max-rul", help="Cap the RUL target (piecewise linear) [no cap].")] = None,
+        "--max-rul", help="Cap the RUL target (piecewise linear; default: no cap).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the first network.")] = 0,
     ensemble: Annotated[int, typer.Option(
         "--ensemble", help="Networks to train, seeds seed..seed+N-1 (mean and spread).")] = 1,
     epochs: Annotated[int | None, typer.Option(
-        "--epochs", help="Maximum epochs [60 FNN, 30 CNN].")] = None,
+        "--epochs", help="Maximum epochs (default: 60 FNN, 30 CNN).")] = None,
     val_units: Annotated[str | None, typer.Option(
         "--val-units", help="Validate on these whole units instead of 10 % of the flights "
         "(use it for C-MAPSS tables, which have one sample per cycle).")
@@ -46,7 +47,10 @@ def train(
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Train the paper's FNN or 1-D CNN on a feature table and save it (weights, scaler,
-    inputs, interval) to MODEL_DIR."""
+    inputs, interval) to MODEL_DIR.
+
+    Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
+    """
     from engine_model.datasets import read_dataset
     from prognostics.checkpoint import check_model_target, save_model
     from prognostics.training import TrainConfig, fit
