@@ -86,7 +86,7 @@ class RulModel:
                              "model was trained on")
         frame = sort_table(df)
         check_table(frame, self.columns, source, target=False)
-        x = self.scaler.transform(frame[list(self.columns)].to_numpy(np.float64))
+        x = self.scaler.transform_frame(frame)
         unit = frame["unit"].to_numpy()
         a, b = segments(unit, np.zeros(len(unit), np.int8))
         win = make_windows(x, a, b, self.window, 1)

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from engine_model.validation import InputError
 
@@ -46,6 +47,21 @@ class MinMaxScaler:
         return cls(tuple(columns), x.min(axis=0).astype(np.float64),
                    x.max(axis=0).astype(np.float64))
 
+    @classmethod
+    def fit_frame(cls, df: pd.DataFrame, columns: Sequence[str],
+                  rows: np.ndarray | None = None) -> MinMaxScaler:
+        """Fit on the rows ``rows`` (a boolean mask; None: all) of ``df[columns]``, one column
+        at a time (no float64 copy of the whole table)."""
+        columns = list(columns)
+        lo, hi = np.empty(len(columns)), np.empty(len(columns))
+        for j, c in enumerate(columns):
+            v = df[c].to_numpy(np.float64)
+            v = v if rows is None else v[rows]
+            if v.size == 0:
+                raise InputError("scaler: no training rows to fit on")
+            lo[j], hi[j] = v.min(), v.max()
+        return cls(tuple(columns), lo, hi)
+
     @property
     def constant(self) -> np.ndarray:
         span = self.maximum - self.minimum
@@ -65,6 +81,15 @@ class MinMaxScaler:
             raise InputError(f"scaler: expected (n, {len(self.columns)}) rows, got {x.shape}")
         scale, offset = self._affine()
         return np.ascontiguousarray(x * scale + offset, dtype=dtype)
+
+    def transform_frame(self, df: pd.DataFrame, dtype=np.float32) -> np.ndarray:
+        """``transform(df[columns])`` computed one column at a time into one C-contiguous
+        ``dtype`` array: the same numbers, without a float64 copy of the whole table."""
+        scale, offset = self._affine()
+        out = np.empty((len(df), len(self.columns)), dtype=dtype)
+        for j, c in enumerate(self.columns):
+            out[:, j] = df[c].to_numpy(np.float64) * scale[j] + offset[j]
+        return out
 
     def to_dict(self) -> dict:
         return {"columns": list(self.columns), "minimum": self.minimum.tolist(),

@@ -182,16 +182,16 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     present = np.unique(df["unit"].to_numpy()).tolist()
     dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
     columns = resolve_inputs(cfg.inputs, list(df.columns), source)
-    frame = sort_table(df[df["unit"].isin(dev)])
+    every_unit = set(present) <= set(dev)  # no copy of the table when it is all development
+    frame = sort_table(df if every_unit else df[df["unit"].isin(dev)])
     check_table(frame, columns, source)
     unit = frame["unit"].to_numpy()
     roles = assign_roles(unit, frame["cycle"].to_numpy(), dev, (), seed=cfg.seed,
                          val_fraction=cfg.val_fraction, validation=cfg.validation,
                          val_units=cfg.val_units, conformal_units=cfg.conformal_units,
                          source=source)
-    raw = frame[columns].to_numpy(np.float64)
-    scaler = MinMaxScaler.fit(raw[roles == TRAIN], columns)
-    x = scaler.transform(raw)
+    scaler = MinMaxScaler.fit_frame(frame, columns, roles == TRAIN)
+    x = scaler.transform_frame(frame)
     y = frame[TARGET].to_numpy(np.float64)
     if cfg.max_rul is not None:
         y = np.minimum(y, cfg.max_rul)

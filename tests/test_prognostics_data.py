@@ -100,6 +100,13 @@ def test_minmax_scaler_maps_training_range_to_minus_one_one():
     np.testing.assert_allclose(z[:, 1], 0.0)  # a constant column maps to 0, no division by 0
     np.testing.assert_allclose(s.transform(np.array([[20.0, 7.0, 1.0]])), [[3.0, 0.0, -2.0]])
     assert MinMaxScaler.from_dict(s.to_dict()).to_dict() == s.to_dict()
+    # the column-by-column form (what training uses: no float64 copy of the table) is the same
+    df = pd.DataFrame(x, columns=["a", "b", "c"])
+    rows = np.array([True, False, True])
+    f = MinMaxScaler.fit_frame(df, ["a", "b", "c"], rows)
+    assert f.to_dict() == MinMaxScaler.fit(x[rows], ["a", "b", "c"]).to_dict()
+    np.testing.assert_array_equal(f.transform_frame(df), f.transform(x))
+    assert f.transform_frame(df).flags.c_contiguous
 
 
 def test_scaler_sees_the_training_rows_only(make_features):
