@@ -9,10 +9,12 @@ flights.
    p-value uses the candidate's weights, and it must pass the family-wise critical p-value of
    the screen (:mod:`.max_stat`).
 3. Held-out whole flights: every third cycle of every unit with at least three cycles (cycles
-   2, 5, 8, ... in row order) is left out of both fits (their theta is carried by the drift
-   prior from the neighbouring flights); the candidate must lower the held-out residual sum of
-   squares. Data with fewer than three cycles in every unit have no held-out flights and rely
-   on the likelihood ratio alone (reported).
+   2, 5, 8, ... in row order) is left out of the estimate of ``phi`` (null and alternative
+   alike); then, with ``phi`` fixed at that estimate, theta is fitted on every flight (theta
+   is a per-flight nuisance: each held-out flight gets its own, from its own samples and the
+   drift prior) and the residual of the held-out flights is compared. The candidate must
+   lower it. Data with fewer than three cycles in every unit have no held-out flights and
+   rely on the likelihood ratio alone (reported).
 4. It must explain a material share of what is wrong: ``LR / max(X, LR) >=``
    :data:`MIN_SHARE`, with the excess ``X = sum e^2 - (n m - n_free)`` of the null fit's
    residual over its expectation under the noise model (the chi-square excess). A true
@@ -56,9 +58,11 @@ def holdout_masks(problem: Problem, every: int = 3):
     return (train, held) if any_held else None
 
 
-def held_out_sse(problem: Problem, state: FitState, held) -> float:
-    lin = problem.linearize(state.Theta, state.phi, state.lin.x, held, derivatives=False)
-    return lin.sse
+def held_out_sse(problem: Problem, start: FitState, phi: np.ndarray, held) -> float:
+    """Residual sum of squares on the held-out flights of the model with ``phi`` fixed and
+    theta fitted on every flight (warm-started at ``start``)."""
+    st = fit(problem, start.Theta, phi, (), xs=start.lin.x)
+    return problem.linearize(st.Theta, st.phi, st.lin.x, held, derivatives=False).sse
 
 
 @dataclass
@@ -120,8 +124,10 @@ def confirm(problem: Problem, null: FitState, candidate, phi1: np.ndarray, weigh
         nt_fit = (null_train() if null_train is not None else
                   fit(problem, null.Theta, null.phi, accepted, masks=train, xs=null.lin.x))
         alt_train = fit(problem, alt.Theta, alt.phi, free, masks=train, xs=alt.lin.x)
-        s_null = held_out_sse(problem, nt_fit, held)
-        s_alt = held_out_sse(problem, alt_train, held)
+        s_null = (problem.linearize(null.Theta, null.phi, null.lin.x, held,
+                                    derivatives=False).sse if accepted.size == 0 else
+                  held_out_sse(problem, null, nt_fit.phi, held))
+        s_alt = held_out_sse(problem, alt, alt_train.phi, held)
         ok_held = s_alt < s_null
     if p > p_crit:
         reason = f"likelihood ratio {LR:.3g}: p = {p:.3g} above the family-wise {p_crit:.3g}"

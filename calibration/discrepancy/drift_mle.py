@@ -9,10 +9,10 @@ in information form)::
                     + 1/2 log det(J^T J + Lambda_q) - 1/2 log det(Lambda_q) + const
 
 summed over units (they share ``q``, not theta). It is minimised over ``log q`` (bounded
-scalar search, :func:`scipy.optimize.minimize_scalar`); the fit is then redone at the new
-``q`` and ``q`` re-estimated once (the linearisation point moves little). This replaces a
-hand-set ``--drift``: e.g. the ``tiny`` fleet, whose 10-cycle lives degrade fast, needs about
-ten times the default.
+scalar search, :func:`scipy.optimize.minimize_scalar`) and the fit is redone at the new ``q``
+(one round: the linearisation point moves little). This replaces a hand-set ``--drift``: on
+the ``tiny`` fleet (10-cycle lives, fast wear) it gives q of about 0.003 per sqrt(hour) for the
+per-cycle model, three times the default 1e-3.
 """
 
 from __future__ import annotations

@@ -191,9 +191,8 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
     def update_drift(state, accepted):
         if o.drift != "mle":
             return state
-        for _ in range(2):
-            problem.q = drift_mle(problem, state)
-            state = fit(problem, state.Theta, state.phi, accepted, xs=state.lin.x)
+        problem.q = drift_mle(problem, state)
+        state = fit(problem, state.Theta, state.phi, accepted, xs=state.lin.x)
         drift["q"] = problem.q
         return state
 
@@ -202,7 +201,6 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
     first_null = null
     masks = holdout_masks(problem, o.holdout_every)
     accepted = np.zeros(0, int)
-    first_cache: dict = {}
     last_train = None
     found, ambiguous, rejected, screens = [], [], [], []
     done_names: set = set()
@@ -224,8 +222,6 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
         if not sig:
             break
         cache: dict = {}
-        if it == 1:
-            first_cache = cache
 
         def null_train(state=null, acc=accepted, cache=cache):
             if "fit" not in cache:
@@ -293,15 +289,17 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
                                                                 strict=True)],
                          sensors, o.alpha)
     if masks is not None:
+        # effect parameters estimated without the held-out flights, theta fitted on every
+        # flight (a per-flight nuisance), residual of the held-out flights (confirm docstring)
         train, held = masks
-        # the training-flight fits of the first null and of the final model (reused from the
-        # screen and the last confirmation where they were already made)
-        b_fit = first_cache.get("fit") or fit(problem, first_null.Theta, np.zeros(cm.n_phi),
-                                              masks=train, xs=first_null.lin.x)
-        a_fit = (b_fit if not found else last_train) or fit(
-            problem, final.Theta, final.phi, accepted, masks=train, xs=final.lin.x)
-        before = {"on": "held-out flights", **_channel_stats(problem, b_fit, held)}
-        after = {"on": "held-out flights", **_channel_stats(problem, a_fit, held)}
+        before = {"on": "held-out flights", **_channel_stats(problem, first_null, held)}
+        if found:
+            a_train = last_train or fit(problem, final.Theta, final.phi, accepted,
+                                        masks=train, xs=final.lin.x)
+            a_fit = fit(problem, final.Theta, a_train.phi, (), xs=final.lin.x)
+            after = {"on": "held-out flights", **_channel_stats(problem, a_fit, held)}
+        else:
+            after = before
     else:
         before = {"on": "all samples (no held-out flights)",
                   **_channel_stats(problem, first_null)}

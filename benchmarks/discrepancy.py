@@ -1,0 +1,175 @@
+"""The discrepancy loop (:mod:`calibration.discrepancy`) on fleets with an undeclared effect:
+detection, identification, false discoveries, residual reduction, theta_hat bias before and
+after.
+
+    python benchmarks/discrepancy.py                         # every effect at its typical size
+    python benchmarks/discrepancy.py --sizes 0.5,1,3 --seeds 0,1,2 --null-fleets 20
+    python benchmarks/discrepancy.py --effects customer_bleed,hp_offtake --units 1,2
+
+Sizes are multiples of each effect's documented realistic size (``Param.typical``; the T48
+sensor offset: +6 degR, about 1.5 sigma of the channel at cruise). Steady effects are switched
+on in the truth model (the candidate model's variant, same compiled code); sensor effects
+(bias, drift on T48) are applied to the noise-free readings through the effect's own ``apply``
+before the simulator's noise, which is what the simulator does with a sensor effect in the
+truth. Fleets: units of the ``tiny`` preset (one per run by default). Each run is one
+:func:`discover` call (warm start ``ukf``, q by maximum likelihood, alpha 0.01).
+
+Reported per effect and size: detection rate (anything added or an unknown effect),
+identification rate (the true effect added first), residual RMSE of the most affected channel
+before -> after (held-out flights, noise units), theta_hat bias before -> after (largest over
+the estimated parameters). Null fleets: the rate of runs that add any effect (target <= alpha)
+and of runs that report an unknown effect.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from calibration import CalibrationSetup  # noqa: E402
+from calibration.discrepancy import DiscoverOptions, discover  # noqa: E402
+from calibration.discrepancy.candidates import STEADY_DEFAULT  # noqa: E402
+from engine_model import EngineModel, fleet, sensor_noise  # noqa: E402
+from engine_model.effects import parse_effect_spec  # noqa: E402
+from engine_model.shared_model import default_model  # noqa: E402
+
+# effect -> (spec at size 1, the parameter that scales)
+EFFECTS = {
+    "customer_bleed": ("customer_bleed:f0={x}", 0.015),
+    "hp_offtake": ("hp_offtake:P_kw={x}", 150.0),
+    "reynolds": ("reynolds:n={x}", 0.05),
+    "inlet_loss": ("inlet_loss:dp={x}", 0.005),
+    "nozzle_area": ("nozzle_area:dA8={x}", 0.02),
+    "sensor_bias_T48": ("sensor_bias:channel=T48,offset={x}", 6.0),
+    "sensor_drift_T48": ("sensor_drift:channel=T48,rate={x}", 1e-4),
+}
+
+
+def simulate(base, name: str, size: float, unit: int, seed: int):
+    spec, typical = EFFECTS[name]
+    eff = parse_effect_spec(spec.format(x=size * typical))
+    if name.startswith("sensor_"):
+        df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base, noise_scale=0.0)
+        ch = eff.channel
+        p = {q.name: eff.values[q.name] for q in eff.params}
+        if "cycle" in p:
+            p["cycle"] = df["cycle"].to_numpy(float)
+        df[ch] = eff.apply("sensor:" + ch, df[ch].to_numpy(float), p, {})
+        rng = np.random.default_rng([seed, unit, 99])
+        return sensor_noise.add_noise(df, rng), eff
+    effs = [parse_effect_spec(n) for n in STEADY_DEFAULT]
+    effs[STEADY_DEFAULT.index(name)] = eff
+    truth = EngineModel(design=base.design, effects=effs)
+    df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=truth, effects=[eff])
+    return df, eff
+
+
+def one_run(base, frames, opts, truth_name=None) -> dict:
+    t0 = time.perf_counter()
+    d = discover(frames, CalibrationSetup(), opts, base_model=base)
+    names = [f["name"] for f in d.found]
+    b, a = d.before["channels"], d.after["channels"]
+    worst = max(b, key=lambda c: b[c]["rmse"] or 0.0)
+    te = d.theta_error or {}
+    bias_b = max(abs(v["bias"]) for v in te["before"].values()) if te else None
+    bias_a = max(abs(v["bias"]) for v in te["after"].values()) if te else None
+    return {"truth": truth_name, "verdict": d.verdict, "found": names,
+            "params": [f["params"] for f in d.found], "std": [f["std"] for f in d.found],
+            "identified": bool(names) and truth_name is not None and names[0] == truth_name,
+            "detected": bool(names) or d.verdict == "unknown effect",
+            "channel": worst, "rmse_before": b[worst]["rmse"], "rmse_after": a[worst]["rmse"],
+            "theta_bias_before": bias_b, "theta_bias_after": bias_a, "q": d.drift["q"],
+            "seconds": time.perf_counter() - t0}
+
+
+def cmapss(base, path, method):
+    """The loop on NASA's C-MAPSS FD002 operating-point means: one 'unit', one cycle (constant
+    theta), the channels C-MAPSS shows. Each row is a mean of many readings, but of many units
+    too: the documented sensor noise (half the unit-to-unit scatter) is kept as each row's
+    noise, i.e. each mean is weighted like one reading (conservative)."""
+    import pandas as pd
+
+    df = pd.read_csv(path)
+    df = df.rename(columns={"alt_kft": "alt"})
+    df["alt"] = df["alt"] * 1000.0
+    d = discover([df], CalibrationSetup(), DiscoverOptions(method=method, drift=1e-3),
+                 base_model=base)
+    from calibration.discrepancy.report import markdown
+
+    print(markdown(d))
+    out = Path(__file__).parent / "results" / "discrepancy_cmapss.md"
+    out.write_text(markdown(d))
+    return d
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--effects", default=",".join(EFFECTS))
+    ap.add_argument("--sizes", default="1", help="multiples of the realistic size")
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--units", default="1", help="tiny units, one run each")
+    ap.add_argument("--null-fleets", type=int, default=2)
+    ap.add_argument("--method", default="ukf")
+    ap.add_argument("--cmapss", help="run on C-MAPSS operating-point means instead (e.g. "
+                    "data_samples/cmapss-fd002-operating-points.csv)")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" /
+                                          "discrepancy.json"))
+    a = ap.parse_args(argv)
+    base = default_model()
+    if a.cmapss:
+        return cmapss(base, a.cmapss, a.method)
+    opts = DiscoverOptions(method=a.method)
+    runs = []
+    print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'})")
+    for name in a.effects.split(","):
+        for size in map(float, a.sizes.split(",")):
+            for seed in map(int, a.seeds.split(",")):
+                for unit in map(int, a.units.split(",")):
+                    df, eff = simulate(base, name, size, unit, seed)
+                    r = one_run(base, [df], opts, name)
+                    r.update(size=size, seed=seed, unit=unit, spec=eff.spec())
+                    runs.append(r)
+                    print(json.dumps(r), flush=True)
+    for k in range(a.null_fleets):
+        df, _, _ = fleet.simulate("tiny", units=[1 + k % 4], seed=1000 + k, model=base)
+        r = one_run(base, [df], opts)
+        r.update(size=0.0, seed=1000 + k, unit=1 + k % 4, spec="none")
+        runs.append(r)
+        print(json.dumps(r), flush=True)
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(runs, indent=1))
+    print()
+    print("| effect | size | runs | detected | identified | channel RMSE before -> after |"
+          " theta bias before -> after | verdicts |")
+    print("|---|---|---|---|---|---|---|---|")
+    keys = sorted({(r["truth"] or "none", r["size"]) for r in runs}, key=str)
+    for name, size in keys:
+        rs = [r for r in runs if (r["truth"] or "none") == name and r["size"] == size]
+        det = np.mean([r["detected"] for r in rs])
+        idf = np.mean([r["identified"] for r in rs]) if name != "none" else float("nan")
+        rb = np.mean([r["rmse_before"] for r in rs])
+        ra = np.mean([r["rmse_after"] for r in rs])
+        tb = np.mean([r["theta_bias_before"] for r in rs])
+        ta = np.mean([r["theta_bias_after"] for r in rs])
+        verdicts = ", ".join(sorted({r["verdict"] for r in rs}))
+        print(f"| {name} | {size:g} | {len(rs)} | {det:.0%} | "
+              f"{'-' if name == 'none' else f'{idf:.0%}'} | {rs[0]['channel']} {rb:.2f} -> "
+              f"{ra:.2f} | {tb:.2e} -> {ta:.2e} | {verdicts} |")
+    nulls = [r for r in runs if r["truth"] is None]
+    if nulls:
+        fd = np.mean([bool(r["found"]) for r in nulls])
+        print(f"\nno-effect fleets: {len(nulls)}, false discoveries (an effect added) "
+              f"{fd:.0%}, 'unknown effect' "
+              f"{np.mean([r['verdict'] == 'unknown effect' for r in nulls]):.0%}")
+
+
+if __name__ == "__main__":
+    main()
