@@ -410,6 +410,7 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
         lengths = keys.groupby("unit").size().to_dict()
         df_all = None
     lengths = {int(u): int(n) for u, n in lengths.items()}
+    setup = setup.for_dataset(meta)  # e.g. C-MAPSS's Ps30 out of the default sensors
     if not lengths:
         raise InputError(f"{source or 'data'}: no rows to calibrate")
 

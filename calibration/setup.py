@@ -87,7 +87,11 @@ class CalibrationSetup:
 
     ``params``      health parameters to estimate [the paper's HPT_eff_mod, LPT_eff_mod,
                     LPT_flow_mod]; any subset of :data:`channels.THETA_NAMES`
-    ``sensors``     measured channels to use [None: every x_s channel present in the data]
+    ``sensors``     measured channels to use [None: every x_s channel present in the data
+                    except ``exclude_sensors``]
+    ``exclude_sensors`` channels left out of the default set: a dataset's metadata names
+                    those that do not follow their stated definition (``not_physical`` of
+                    a C-MAPSS import: its ``Ps30``) [()]
     ``noise_scale`` multiplier of the documented sensor noise in ``R`` [1]
     ``drift_std_per_sqrt_h``  random-walk std of theta per sqrt(hour of operation) [1e-3]
     ``prior_mean``  prior mean of the estimated theta at the first sample, one value or one
@@ -104,6 +108,7 @@ class CalibrationSetup:
 
     params: tuple = PAPER_THETA
     sensors: tuple | None = None
+    exclude_sensors: tuple = ()
     noise_scale: float = 1.0
     drift_std_per_sqrt_h: float = DEFAULT_DRIFT_STD_PER_SQRT_H
     prior_mean: float | tuple = 0.0
@@ -137,6 +142,7 @@ class CalibrationSetup:
                                  f"{', '.join(XS_NAMES)}")
             if not sensors:
                 raise InputError("calibration: no sensor to use")
+        object.__setattr__(self, "exclude_sensors", tuple(self.exclude_sensors))
         fixed = self.theta_fixed
         if isinstance(fixed, Mapping):
             fixed = tuple(sorted(fixed.items()))
@@ -210,15 +216,25 @@ class CalibrationSetup:
                                        f" measured channel {x} is absent); rename it"
                                        for c, x in typos))
         if self.sensors is None:
-            sensors = tuple(c for c in XS_NAMES if c in columns)
+            sensors = tuple(c for c in XS_NAMES
+                            if c in columns and c not in self.exclude_sensors)
             if not sensors:
                 raise InputError(f"data: none of the measured channels {', '.join(XS_NAMES)}"
-                                 " is present")
+                                 " is present" + (f" (left out: {', '.join(self.exclude_sensors)})"
+                                                  if self.exclude_sensors else ""))
             return sensors
         absent = [c for c in self.sensors if c not in columns]
         if absent:
             raise InputError(f"missing sensor column(s) {', '.join(absent)}")
         return self.sensors
+
+    def for_dataset(self, meta: dict) -> CalibrationSetup:
+        """This setup for a dataset with metadata ``meta``: when no sensors were chosen, the
+        channels its ``not_physical`` entry names are added to :attr:`exclude_sensors`."""
+        extra = [c for c in (meta.get("not_physical") or {}) if c not in self.exclude_sensors]
+        if self.sensors is not None or not extra:
+            return self
+        return replace(self, exclude_sensors=(*self.exclude_sensors, *extra))
 
     def with_params(self, params) -> CalibrationSetup:
         """The same setup for a subset of its parameters (prior values carried over)."""

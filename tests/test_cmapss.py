@@ -21,7 +21,7 @@ from engine_model.datasets import (
     read_dataset,
     read_rul_file,
 )
-from engine_model.datasets.cmapss import offset_for_test_units
+from engine_model.datasets.cmapss import NOT_PHYSICAL, offset_for_test_units
 from engine_model.validation import InputError
 
 # an FD002 line: settings (alt kft, Mach, TRA) and the 21 sensors, T2 first, W32 last
@@ -89,9 +89,22 @@ def test_train_rul_counts_down_to_zero_at_the_last_cycle(files):
     assert (df["t"] == 0.0).all() and df["t"].dtype == np.float64
     assert meta == {"source_format": "cmapss-text", "dev_units": [1, 2], "test_units": [],
                     "test_unit_offset": 1000, "source_files": {"train": "train_FD002.txt"},
-                    "cmapss_subset": "FD002"}
+                    "cmapss_subset": "FD002", "not_physical": NOT_PHYSICAL}
     assert "sample_rate_hz" not in meta  # one snapshot per cycle: no sample rate
     assert list(df.columns[:8]) == ["unit", "cycle", "t", "RUL", "alt", "Mach", "TRA", "T2"]
+
+
+def test_calibration_leaves_the_not_physical_ps30_out_by_default(files):
+    from calibration import CalibrationSetup
+
+    df, meta = read_cmapss(files[0])
+    assert list(meta["not_physical"]) == ["Ps30"]
+    default = CalibrationSetup().for_dataset(meta)
+    used = default.resolve_sensors(df.columns)
+    assert "Ps30" not in used and {"T24", "T30", "T50", "P30", "Nf", "Nc"} <= set(used)
+    chosen = CalibrationSetup(sensors=("T30", "Ps30")).for_dataset(meta)  # the user decides
+    assert chosen.resolve_sensors(df.columns) == ("T30", "Ps30")
+    assert CalibrationSetup().for_dataset({}) == CalibrationSetup()
 
 
 def test_test_units_are_renumbered_and_their_rul_comes_from_the_rul_file(files):

@@ -69,6 +69,15 @@ TEST_UNIT_STEP = 1000
 _SUBSET = re.compile(r"FD\d{3}", re.IGNORECASE)
 
 
+
+#: C-MAPSS channels that do not follow their stated definition, so that no physics-based
+#: model can match them; recorded in the metadata as ``not_physical`` and left out of the
+#: default sensor set of a calibration (``CalibrationSetup.exclude_sensors``). C-MAPSS's
+#: ``Ps30`` ("HPC outlet static pressure", psia) is about 1/12 of its total ``P30`` at every
+#: operating point (47.5 against 554 psia at sea-level take-off in FD001), which no static
+#: pressure behind a compressor can be; see README, "Model versus C-MAPSS".
+NOT_PHYSICAL = {"Ps30": "about 1/12 of P30 at every point: not a static pressure in psia"}
+
 def _lines(path: Path) -> list[tuple[int, list[str]]]:
     """(1-based line number, tokens) of every non-blank line of a text file."""
     try:
@@ -218,6 +227,7 @@ def read_cmapss(train: str | os.PathLike, test: str | os.PathLike | None = None,
         "test_units": test_units,
         "test_unit_offset": offset,
         "source_files": files,
+        "not_physical": NOT_PHYSICAL,
     }
     subset = _SUBSET.search(train_path.name)
     if subset:
