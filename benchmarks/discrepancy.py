@@ -94,14 +94,17 @@ def cmapss(base, path, method):
     """The loop on NASA's C-MAPSS FD002 operating-point means: one 'unit', one cycle (constant
     theta), the channels C-MAPSS shows. Each row is a mean of many readings, but of many units
     too: the documented sensor noise (half the unit-to-unit scatter) is kept as each row's
-    noise, i.e. each mean is weighted like one reading (conservative)."""
+    noise, i.e. each mean is weighted like one reading (conservative). ``Ps30`` is left out:
+    in the C-MAPSS files it is not a static pressure below P30 (:mod:`engine_model.reference`)."""
     import pandas as pd
 
     df = pd.read_csv(path)
     df = df.rename(columns={"alt_kft": "alt"})
     df["alt"] = df["alt"] * 1000.0
-    d = discover([df], CalibrationSetup(), DiscoverOptions(method=method, drift=1e-3),
-                 base_model=base)
+    sensors = tuple(c for c in ("Nf", "Nc", "T24", "T30", "T50", "P15", "P2", "P30")
+                    if c in df.columns)
+    d = discover([df], CalibrationSetup(sensors=sensors),
+                 DiscoverOptions(method=method, drift=1e-3), base_model=base)
     from calibration.discrepancy.report import markdown
 
     print(markdown(d))

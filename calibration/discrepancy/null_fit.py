@@ -271,6 +271,10 @@ def _split(problem: Problem, z):
             for i in range(len(problem.units))]
 
 
+def _n_failed(lin: Linearization) -> int:
+    return int(sum((~ok).sum() for ok in lin.ok))
+
+
 def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: int = 12,
         rtol: float = 1e-6) -> FitState:
     """Bounded Gauss-Newton on ``(Theta, phi[free])`` from the given point (module
@@ -281,6 +285,12 @@ def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: in
     nt = problem.n_theta
     sel = np.concatenate([np.arange(nt), nt + free])
     lin = problem.linearize(Theta, phi, xs, masks)
+    if xs is not None and _n_failed(lin):  # a warm start that failed: from the model's guess
+        lin = problem.linearize(Theta, phi, None, masks)
+    n_all = sum(len(ok) for ok in lin.ok)
+    if _n_failed(lin) == n_all:
+        raise InputError("discover: the steady state converges at none of the data's points "
+                         "at the starting theta; check the operating columns and units")
     L = problem.objective(lin, Theta)
     it, done = 0, False
     while it < max_iter:
@@ -306,6 +316,8 @@ def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: in
             phi_new[free] = z_new[nt:]
             trial = problem.linearize(Th_new, phi_new, lin.x, masks, derivatives=False)
             L_new = problem.objective(trial, Th_new)
+            if _n_failed(trial) > _n_failed(lin):  # a sample lost is not a better fit
+                L_new = np.inf
             if L_new <= L - 1e-4 * alpha * pred or alpha < 1e-3:
                 break
             alpha *= 0.5

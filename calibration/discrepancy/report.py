@@ -62,11 +62,14 @@ def markdown(d) -> str:
     lines += [f"Drift of theta: q = {dr['q']:.3g} per sqrt(hour) ({dr['method']}).", ""]
     ns = r["noise"]
     flagged = [k for k, v in ns.get("channels", {}).items() if v["flagged"]]
-    if ns.get("checked"):
+    if ns.get("note"):
+        lines += [f"Noise model: not checked ({ns['note']}); the documented sensor noise is "
+                  "used.", ""]
+    elif ns.get("checked"):
         lines += ["Noise model: " + (", ".join(
             f"{k} x{ns['channels'][k]['std_ratio']:.2f}" for k in flagged) + " rescaled"
             if flagged else "consistent with the documented sensor noise on every channel")
-            + (f" ({ns['note']})" if ns.get("note") else "") + ".", ""]
+            + ".", ""]
     if r["found"]:
         lines += ["## Effects added", "", "| # | effect | parameters (95 % interval) | LR "
                   "| p | share of excess | held-out SSE without -> with |", "|---|---|---|---|"
@@ -92,12 +95,13 @@ def markdown(d) -> str:
     if r["unknown"]:
         lines += ["## Unknown effect", "", "Structure that no candidate explains, by channel "
                   "(sparse regression of the residual on the operating variables):", ""]
-        for ch, h in r["unknown"]["hint"].items():
+        for ch in r["unknown"]["channels"]:
+            h = r["unknown"]["hint"][ch]
             terms = ", ".join(f"{t} ({c:+.2f})" for t, c in zip(h["terms"], h["coefficients"],
                                                              strict=True)) or "(bias / "\
                 "correlation only)"
-            lines.append(f"- {ch}: {terms}; explains {100 * h['explained']:.0f} % of its "
-                         "residual variance")
+            lines.append(f"- {ch} (residual RMSE {h['rmse']:.3g} noise std): {terms}; "
+                         f"explains {100 * h['explained']:.0f} % of its residual variance")
         lines.append("")
     if r["rejected"]:
         lines += ["Candidates screened significant but not added:", ""]

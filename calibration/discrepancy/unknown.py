@@ -7,9 +7,12 @@ zero-mean, unit variance and unrelated to the operating point):
 - **dependence on the operating variables**: least squares of ``e_j`` on the documented basis
   :data:`BASIS` (standardised), F-test against the intercept-only model;
 - **bias**: the channel mean, t-test;
+- **size**: ``sum e_j^2`` against chi-square with ``n (1 - n_fitted / (n m))`` degrees of
+  freedom (the noise check has confirmed ``R``; with few samples, e.g. a table of operating
+  points, this is the only test with power);
 - **whiteness**: lag-1 autocorrelation within flights, ``z = r1 sqrt(n)``;
 
-each at ``alpha / (3 m)`` (Bonferroni over channels and the three tests). A channel that fails
+each at ``alpha / (4 m)`` (Bonferroni over channels and the four tests). A channel that fails
 any carries structure. The hint is a sparse regression of its residual on the basis: forward
 stepwise selection (up to :data:`MAX_TERMS` terms, each kept only if it lowers the BIC),
 reported as the terms it follows with their coefficients (noise units per basis standard
@@ -33,8 +36,8 @@ cycle              the flight cycle: a trend with use
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import chi2, norm
 from scipy.stats import f as f_dist
-from scipy.stats import norm
 from scipy.stats import t as t_dist
 
 MAX_TERMS = 3
@@ -97,7 +100,8 @@ def forward_select(X: np.ndarray, y: np.ndarray, names, max_terms: int = MAX_TER
             "explained": float(1.0 - sse / sst) if sst > 0 else 0.0}
 
 
-def structure(residuals: list, units: list, sensors, alpha: float = 0.01) -> dict:
+def structure(residuals: list, units: list, sensors, alpha: float = 0.01,
+              n_fitted: int = 0) -> dict:
     """Per-channel tests and, for channels with structure, the hint (module docstring)."""
     e = np.concatenate([r[ok] for r, ok in zip(residuals, (u[1] for u in units),
                                                strict=True)])
@@ -112,7 +116,8 @@ def structure(residuals: list, units: list, sensors, alpha: float = 0.01) -> dic
     names = [BASIS_NAMES[j] for j in keep]
     flight = np.concatenate(flights)
     n, m = e.shape
-    level = alpha / (3 * m)
+    level = alpha / (4 * m)
+    dof = max(n * (1.0 - n_fitted / max(n * m, 1)), 1.0)
     same = flight[1:] == flight[:-1]
     A = np.column_stack([np.ones(n), X])
     out = {"channels": {}, "alpha": alpha, "structure": [], "hint": {}}
@@ -133,10 +138,12 @@ def structure(residuals: list, units: list, sensors, alpha: float = 0.01) -> dic
         r1 = float(np.sum(yc[1:][same] * yc[:-1][same]) / max(float(yc @ yc), 1e-300))
         z1 = r1 * np.sqrt(max(int(same.sum()), 1))
         p_w = float(2 * norm.sf(abs(z1)))
-        flagged = min(p_bias, p_f, p_w) <= level
+        p_size = float(chi2.sf(float(y @ y), dof))
+        flagged = min(p_bias, p_f, p_w, p_size) <= level
         out["channels"][ch] = {"rmse": float(np.sqrt(np.mean(y * y))), "bias": mean,
                                "p_bias": p_bias, "p_operating": p_f, "lag1": r1,
-                               "p_white": p_w, "structure": bool(flagged)}
+                               "p_white": p_w, "p_chi2": p_size,
+                               "structure": bool(flagged)}
         if flagged:
             out["structure"].append(ch)
             out["hint"][ch] = {"rmse": out["channels"][ch]["rmse"],
