@@ -45,9 +45,12 @@ def noncentrality(df: int, p_crit: float, power: float = POWER) -> float:
     return float(brentq(lambda lam: ncx2.sf(crit, df, lam) - power, 1e-9, 1e6))
 
 
-def candidate_report(scores: Scores, c, p_crit: float, df: int) -> dict:
-    """Signature norms, ratio, absorbed flag, minimum detectable size per parameter and the
-    theta shift per unit of each parameter (first theta rows only: per-cycle means)."""
+def candidate_report(scores: Scores, c, p_crit: float, df: int, theta_names=(),
+                     n_theta: int = 0) -> dict:
+    """Signature norms, ratio, absorbed flag, minimum detectable size per parameter and
+    ``theta_shift``: how far theta (mean over cycles and units) moves to absorb one unit of
+    each parameter, ``H_NN^-1 H_Nj`` (the bias an undeclared effect puts into the health
+    estimate)."""
     b = _block(scores, c)
     S = scores.S[np.ix_(b, b)]
     D = scores.D[b]
@@ -55,7 +58,12 @@ def candidate_report(scores: Scores, c, p_crit: float, df: int) -> dict:
     # one-sided parameters: the test is at twice the level on the half line
     lam = noncentrality(df, p_crit * (2.0 if np.any(c.one_sided) and df == 1 else 1.0))
     mds = np.sqrt(lam / np.maximum(np.diag(S), 1e-300))
+    k = len(theta_names)
+    nt = int(np.sum(scores.nuisance < n_theta))
+    shift = scores.shift[:nt, b].reshape(-1, k, len(b)).mean(axis=0)  # (k, n_params)
     return {"params": list(c.params), "signature_norm": np.sqrt(D).tolist(),
+            "theta_shift": {q: {t: float(shift[i, j]) for i, t in enumerate(theta_names)}
+                            for j, q in enumerate(c.params)},
             "projected_norm": np.sqrt(np.clip(np.diag(S), 0, None)).tolist(),
             "ratio": ratio.tolist(), "absorbed": bool(np.all(ratio < ABSORBED_RATIO)),
             "min_detectable": mds.tolist()}

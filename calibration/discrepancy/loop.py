@@ -212,7 +212,8 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
             break
         scores = efficient_scores(problem, null, accepted)
         res = screen(scores, remaining, o.alpha, o.n_draws, o.seed + it)
-        reports = {c.name: ident.candidate_report(scores, c, res.p_crit, int(res.df[i]))
+        reports = {c.name: ident.candidate_report(scores, c, res.p_crit, int(res.df[i]),
+                                                  setup.params, problem.n_theta)
                    for i, c in enumerate(remaining)}
         screens.append({"iteration": it, "p_crit": res.p_crit,
                         "candidates": _screen_table(res, reports)})
