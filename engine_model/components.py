@@ -29,7 +29,14 @@ def duct_loss(P_in, Wc, Wc_des, dp_des):
 
 
 def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
-    """Compressor on its map: corrected flow, exit state, specific work and stall margin."""
+    """Compressor on its map: corrected flow, exit state, specific work and stall margin.
+
+    The map (:class:`maps.CompressorMap`) gives the isentropic head, hence the pressure
+    ratio, at ``(n, beta)``; the efficiency (scaled by ``1 + eff_mod``) gives the specific
+    work ``dh = head / eta``. The stall margin is taken at constant corrected speed against
+    the surge line of the compressor's own flow capacity (:meth:`maps.CompressorMap.beta_surge`),
+    ``SM = 100 (PR_surge / PR - 1)``.
+    """
     wc = cmap.flow(n, beta, flow_mod)
     W = physical_flow(wc, T_in, P_in)
     head = cmap.head(n, beta) * T_in  # isentropic specific work [J/kg]
@@ -41,13 +48,27 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
     dh = head / eta
     T_out = gas.t_from_h(h_in + dh, far, T_in + dh / cp_in)
     # surge line at the same corrected speed
-    head_s = cmap.head(n, cmap.beta_surge) * T_in
+    head_s = cmap.head(n, cmap.beta_surge(flow_mod)) * T_in
     T_is_s = gas.t_from_h(h_in + head_s, far, T_in + head_s / cp_in)
     pr_s = gas.pressure_ratio_isentropic(T_in, T_is_s, far)
     return {
         "Wc": wc, "W": W, "T_out": T_out, "P_out": P_in * pr, "PR": pr, "eta": eta,
-        "dh": dh, "SM": 100.0 * (pr_s / pr - 1.0),
+        "dh": dh, "SM": 100.0 * (pr_s / pr - 1.0), "PR_surge": pr_s,
     }
+
+
+def handling_bleed_fraction(n_fan, f_max, n_mid, width):
+    """Variable-bleed-valve (VBV) schedule: fraction of the booster exit flow dumped into the
+    bypass duct, open at low power and closed at high power,
+    ``f = f_max (1 - tanh((n - n_mid) / width)) / 2`` in the corrected fan speed ``n``.
+
+    At part speed the HPC's flow capacity falls faster than the booster's, which drives the
+    booster toward surge; bleeding booster air into the fan stream lowers its working line
+    (Walsh & Fletcher, ch. 5.2.6 and 7.x, handling bleed; the CFM56's VBVs, Linke-Diesinger,
+    *Systems of Commercial Turbofan Engines*, Springer 2008, ch. 4, open fully at idle and
+    close by about 80 % N1). The schedule is smooth so that the model stays differentiable.
+    """
+    return f_max * 0.5 * (1.0 - ca.tanh((n_fan - n_mid) / width))
 
 
 def burner(T_in, P_in, W_air, T_out, dp, eta_b, lhv=gas.LHV_KEROSENE):

@@ -11,8 +11,8 @@ Off-design the cycle is a residual system ``r(x; w, theta, p) = 0`` in seven unk
 
 and seven residuals, each scaled by its design value::
 
-    r0 bypass nozzle flow      = bypass flow (fan flow - LPC flow)
-    r1 HPC map flow            = LPC map flow (no bleed between them)
+    r0 bypass nozzle flow      = bypass flow (fan flow - LPC flow) + VBV bleed
+    r1 HPC map flow            = LPC map flow - VBV bleed (- any bleed an effect adds)
     r2 HPT flow capacity       = W41
     r3 HPT power * eta_mech    = HPC power (+ power off-take)
     r4 LPT flow capacity       = W49
@@ -20,8 +20,9 @@ and seven residuals, each scaled by its design value::
     r6 core nozzle flow        = W50
 
 The fan speed is not an unknown: the controller holds the corrected fan speed on its TRA
-schedule (C-MAPSS), so ``Nf = Nf_des * PCNfR_dmd/100 * sqrt(T2/T_std)``, and the fuel flow
-``Wf`` is an output (through T40).
+schedule (C-MAPSS; :mod:`schedule`, idle to maximum, limited by the N1 red line), so
+``Nf = Nf_des * PCNfR_cmd/100 * sqrt(T2/T_std)``, and the fuel flow ``Wf`` is an output
+(through T40). ``PCNfR_dmd`` is the schedule's demand before the limiter.
 
 Extension point. Every quantity that an optional physical effect may change passes through
 ``hook(name, value, **station)`` (see :mod:`engine_model.effects`, which lists the hooks and
@@ -73,9 +74,9 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     Pt0 = P_amb * atmosphere.total_pressure_ratio(Ts0, T2)
     V0 = atmosphere.flight_speed(Ts0, mach)
 
-    # --- controller: corrected fan speed on the TRA schedule ---
+    # --- controller: corrected fan speed on the TRA schedule, N1 red line ---
     pct_dmd = d.nf_demand_pct(tra)
-    n_fan = pct_dmd / 100.0
+    n_fan = d.nf_command_pct(tra, T2) / 100.0
     Nf = s.Nf_rpm * n_fan * ca.sqrt(T2 / T_STD_K)
 
     # --- fan (its modifier hooks see the free-stream Pt0: they precede the intake loss) ---
@@ -96,16 +97,21 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
                                 hook("LPC_flow_mod", lpc_flow, **at21))
     W22, T24, P24 = lpc["W"], lpc["T_out"], lpc["P_out"]
 
-    # --- bypass duct and nozzle ---
+    # --- variable bleed valves: booster-exit air dumped into the bypass duct at part power ---
+    W_vbv = components.handling_bleed_fraction(n_fan, s.vbv_max, s.vbv_n_mid,
+                                               s.vbv_width) * W22
+
+    # --- bypass duct and nozzle (the VBV air mixes into the bypass stream) ---
     W13 = W2 - W22
     wc13 = components.corrected_flow(W13, T21, P21)
     P15 = components.duct_loss(P21, wc13, d.wc13_des, s.dp_bypass)
-    byp = components.convergent_nozzle(P15, T21, 0.0, P_amb, hook("A18", d.A18), s.nozzle_cd,
-                                       s.nozzle_cv)
+    m15 = components.mixer(W13, T21, 0.0, W_vbv, T24, 0.0)
+    byp = components.convergent_nozzle(P15, m15["T"], 0.0, P_amb, hook("A18", d.A18),
+                                       s.nozzle_cd, s.nozzle_cv)
 
     # --- LPC-HPC duct, HPC with coolant extraction ---
     W_bleed_24 = hook("W_bleed_24", 0.0 * W22, W22=W22)  # handling / customer bleed at station 24
-    W25_up = W22 - W_bleed_24
+    W25_up = W22 - W_vbv - W_bleed_24
     wc24 = components.corrected_flow(W22, T24, P24)
     P25 = components.duct_loss(P24, wc24, d.wc24_des, s.dp_icd)
     T25 = T24
@@ -161,7 +167,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
 
     P_lp = W2 * fan["dh"] + W22 * lpc["dh"]
     res = ca.vertcat(
-        (W13 - byp["W"]) / d.W13_des,
+        (W13 + W_vbv - byp["W"]) / d.W13_des,
         (W25_up - W25) / d.W25_des,
         (W41 - hpt["W_cap"]) / d.W4_des,
         (s.eta_mech * W41 * hpt["dh"] - P_hpc - P_offtake) / d.P_hp_des,
@@ -183,10 +189,12 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
         T48=T48, P45=P45, W48=W48, T49=T49, W49=W49, T50=T50, P50=P50, W50=W50, far50=far49,
         Fn=Fn, Fg_bypass=byp["Fg"], Fg_core=core["Fg"], P_hpc=P_hpc, P_lp=P_lp,
         P_hpt=W41 * hpt["dh"], P_lpt=W49 * lpt["dh"], P_offtake=P_offtake, W_cust=W_cust,
-        W_bleed_24=W_bleed_24, T_int=T_int, eta_fan=fan["eta"], eta_lpc=lpc["eta"],
-        eta_hpc=hpc["eta"], eta_hpt=hpt["eta"], eta_lpt=lpt["eta"], eta_b=eta_b,
+        W_bleed_24=W_bleed_24, W_vbv=W_vbv, T15=m15["T"], T_int=T_int, eta_fan=fan["eta"],
+        eta_lpc=lpc["eta"], eta_hpc=hpc["eta"], eta_hpt=hpt["eta"], eta_lpt=lpt["eta"], eta_b=eta_b,
         SmFan=fan["SM"], SmLPC=lpc["SM"], SmHPC=hpc["SM"], n_fan=n_fan, n_lpc=n_lpc,
-        pr_fan=fan["PR"], pr_lpc=lpc["PR"], pr_hpc=hpc["PR"], pr_hpt=pr_hpt, pr_lpt=pr_lpt,
+        pr_fan=fan["PR"], pr_lpc=lpc["PR"], pr_hpc=hpc["PR"], pr_surge_fan=fan["PR_surge"],
+        pr_surge_lpc=lpc["PR_surge"], pr_surge_hpc=hpc["PR_surge"], wc_fan=fan["Wc"],
+        wc_lpc=lpc["Wc"], wc_hpc=hpc["Wc"], pr_hpt=pr_hpt, pr_lpt=pr_lpt,
         x18=byp["x"], x8=core["x"], x18_crit=byp["x_crit"], x8_crit=core["x_crit"],
     )
     return res, st
