@@ -54,28 +54,34 @@ class DesignSpec:
     mach_hpc_exit: float = 0.25
     nozzle_cd: float = 0.98
     nozzle_cv: float = 0.99
-    # design stall margins at SLS take-off [%], at constant corrected speed (maps.py); class-
-    # typical (Walsh & Fletcher ch. 5.2.5: 15-25 % on core compressors; a fan's 100 % line
-    # gives 10-20 % between the take-off point and stall). The booster's pressure ratio is
-    # only 1.31, so its 14 % in pressure ratio is a 50 % rise of its isentropic head.
+    # design stall margins at SLS take-off [%], at constant corrected speed (components.
+    # compressor); class-typical (Walsh & Fletcher ch. 5.2.5: 15-25 % on core compressors,
+    # 10-20 % on fans at take-off). The booster's pressure ratio is only 1.31, so its 14 % in
+    # pressure ratio is a 50 % rise of its isentropic head.
     sm_fan: float = 12.0
     sm_lpc: float = 14.0
     sm_hpc: float = 25.0
-    # variable bleed valves (components.handling_bleed_fraction): up to 10 % of the booster
-    # flow at idle, half open at 75 % corrected fan speed, closed (< 0.3 %) above ~90 %
-    vbv_max: float = 0.10
-    vbv_n_mid: float = 0.75
-    vbv_width: float = 0.08
-    # TRA -> corrected fan speed, idle to maximum, with the N1 red line (schedule.py)
+    # variable bleed valves (components.handling_bleed_fraction), scheduled on the match of
+    # HPC to booster flow capacity m (1 at design, about 0.92 at cruise): 30 % of the booster
+    # flow when the HPC swallows little (m <= 0.76: flight idle at altitude), shut at
+    # m >= 0.90 (take-off, climb and cruise; at sea-level part power m > 1)
+    vbv_max: float = 0.30
+    vbv_m_open: float = 0.76
+    vbv_m_close: float = 0.90
+    # TRA -> corrected fan speed, idle to maximum, with the limiters (schedule.py)
     throttle: ThrottleSchedule = field(default_factory=ThrottleSchedule)
     # Compressor maps (maps.py). Class-typical shape parameters, none fitted to an operating
     # point of the model or of C-MAPSS:
-    # - phi_ch1: choke flow / design flow at 100 % speed, 5-7 %: the take-off point sits on
-    #   the steep upper part of the 100 % line (at the same corrected speed a fan runs closer
-    #   to choke at cruise, where its nozzle is choked, than at take-off).
-    # - k_ch: choke flow ~ n^k_ch; ~1 for a fan or booster stage, about 3 for a 9-10 stage
-    #   HPC whose variable stators close at part speed (Walsh & Fletcher ch. 5.2 and 5.2.6;
-    #   Saravanamuttoo et al. ch. 9 on part-speed mismatch).
+    # - phi_ch1: choke flow / design flow at 100 % speed: 5-6 % for the booster and HPC; 12 %
+    #   for the fan, whose working line at the same corrected speed lies nearer choke at
+    #   cruise (choked bypass nozzle) than at sea-level take-off (unchoked nozzle).
+    # - k_ch: choke flow ~ n^k_ch: 2.5 for a 9-10 stage HPC whose rear stages choke at part
+    #   speed (Walsh & Fletcher ch. 5.2; Saravanamuttoo et al. ch. 9 on part-speed
+    #   mismatch), 1 for the booster, 0.5 for a single fan stage whose throats choke at a
+    #   corrected flow that falls more slowly than speed.
+    # - k_work: 1 for the single-stage fan (physical flow coefficient); k_ch for the
+    #   multistage booster and HPC (stage-averaged flow coefficient, maps.py item 1).
+    # - k_s: the fan's stall flow coefficient ~ n^0.1 (transonic stall at high speed).
     # - kappa: relative slope of the specific-work line along a speed line. One repeating
     #   stage has kappa = phi_d (tan a1 + tan b2) / psi_d = 1.5 (Dixon & Hall's typical stage,
     #   phi_d 0.5, psi_d 0.4); stage matching steepens the overall characteristic of a
@@ -84,25 +90,26 @@ class DesignSpec:
     #   vertical (unique incidence). Values 3-5.5 give 100 % speed lines that span 4-8 %
     #   of flow between the take-off point and stall, as class maps do.
     # - c_phi: incidence-loss curvature: 4-6 points of efficiency between peak and surge.
-    # - (n_pk, phi_opt1): the island's peak, the aerodynamic design point. For the fan and
-    #   the HPC it is the cruise point (35 kft, Mach 0.8, the profiles' mid cruise TRA 70),
-    #   where a civil engine spends most of its life and for which it is designed (Walsh &
-    #   Fletcher ch. 7.3; Cumpsty, Jet Propulsion, ch. 11): the (n, phi_hat) of that point as
-    #   printed by ``benchmarks/map_design_point.py``. The booster's cruise point lies close
-    #   to its stall line (its working line rises as the HPC's flow capacity falls with
-    #   speed), where no designer puts the island: its peak is at the cruise speed and the
-    #   take-off flow coefficient.
+    # - (n_pk, phi_opt1): the island's peak, the aerodynamic design point: the cruise point
+    #   (35 kft, Mach 0.8, ISA, the profiles' mid cruise TRA 70), where a civil engine spends
+    #   most of its life and for which its compressors are designed (Walsh & Fletcher ch. 7.3;
+    #   Cumpsty, Jet Propulsion, ch. 11): the (n, phi_work) of that point as printed by
+    #   ``benchmarks/map_design_point.py``. The fan's values are stable to 0.001; the booster
+    #   and HPC values are those of the iteration before the final VBV schedule, and the
+    #   script now prints (0.919, 0.930) and (0.921, 0.992): moving them there brings the
+    #   booster's flight-idle working line closer to surge and costs convergence (open).
     # - c_n: efficiency fall-off with speed: 5-10 points from the design speed to 50-60 %.
-    # - Design stall margins and variable bleed: see sm_* and vbv_* above.
+    # - lam (beta scale) is a parametrisation choice and does not change the map's shape in
+    #   physical coordinates.
     fan_map: dict = field(default_factory=lambda: dict(
-        phi_ch1=1.12, k_ch=1.0, lam=1.0, kappa=5.0, c_phi=4.0, c_n=0.6, n_pk=0.901,
-        phi_opt1=1.041))
+        phi_ch1=1.12, k_ch=0.5, k_work=1.0, k_s=0.1, lam=1.0, kappa=5.0, c_phi=4.0, c_n=0.6,
+        n_pk=0.901, phi_opt1=1.034))
     lpc_map: dict = field(default_factory=lambda: dict(
-        phi_ch1=1.06, k_ch=1.0, lam=1.0, kappa=5.5, c_phi=8.0, c_n=0.6, n_pk=0.919,
-        phi_opt1=1.0))
+        phi_ch1=1.06, k_ch=1.0, k_work=1.0, lam=1.0, kappa=5.5, c_phi=8.0, c_n=0.6, n_pk=0.919,
+        phi_opt1=0.956))
     hpc_map: dict = field(default_factory=lambda: dict(
-        phi_ch1=1.05, k_ch=3.0, lam=1.0, kappa=3.0, c_phi=8.0, c_n=0.6, n_pk=0.937,
-        phi_opt1=0.998))
+        phi_ch1=1.05, k_ch=2.5, k_work=2.5, lam=1.0, kappa=3.0, c_phi=8.0, c_n=0.6, n_pk=0.930,
+        phi_opt1=0.992))
     c_eta_hpt: float = 0.5
     c_eta_lpt: float = 0.5
 
@@ -158,7 +165,8 @@ class EngineDesign:
 
 def _compressor_map(kw, wc, T_in, head, dh, eta, pr, sm):
     """The map of one compressor scaled at the design point, its stall flow coefficient
-    placed so that the SLS design point has stall margin ``sm`` [%] at constant speed."""
+    ``phi_s1`` placed so that the SLS design point has stall margin ``sm`` [%] at constant
+    corrected speed (the definition of :func:`components.compressor`)."""
     base = CompressorMap(wc_des=wc, work_des=dh / T_in, eta_des=eta, phi_s1=0.5, **kw)
     pr_s = pr * (1.0 + sm / 100.0)
     T_is_s = gas.t_isentropic(T_in, 0.0, pr_s)

@@ -15,11 +15,26 @@ altitude. Below them the schedule falls to ground idle:
   harmonic mean, so the curve cannot overshoot), continued linearly above TRA 100 with its
   end slope.
 
-Limiter: a full-authority controller never lets the physical fan speed exceed its red line
-``N1_max``: the commanded corrected speed is ``min(schedule, 100 N1_max / sqrt(T2/T_std))``,
-taken with a smooth minimum (log-sum-exp over ``LIMIT_SHARPNESS`` per % of speed: it departs
-from the exact minimum by less than 1e-8 % when the two are 4 % apart). With the default red
-line of 106 % N1 it binds only on hot days at TRA > 100.
+Limiters (a full-authority controller's min/max selection; Jaw & Mattingly, *Aircraft Engine
+Controls*, AIAA 2009, ch. 4 and 6; Walsh & Fletcher ch. 7.2 and 8):
+
+* N1 red line: the commanded corrected speed is ``min(schedule, 100 N1_max / sqrt(T2/T_std))``
+  (explicit in the inputs; with 106 % N1 it binds only on hot days at TRA > 100);
+* N2 red line and T48 (EGT) limit: the fan speed is lowered until the physical core speed or
+  T48 is at its limit;
+* minimum core speed: on the ground the engine idles on the fan schedule (ground idle); in
+  flight the controller holds at least ``n2_min_flight`` physical core speed (flight idle),
+  which keeps the burner lit, the bleed pressure up and the fan from windmilling at altitude.
+  The ground/flight switch (weight on wheels in a real FADEC) is a smooth step in Mach
+  between 0.05 and 0.15 (a function of Mach alone keeps the corrected operating point
+  independent of altitude, which the starting-guess table relies on).
+
+The selection ``n = max(min(n_cmd, n_N2max, n_T48max), n_N2min)`` is written as a residual in
+the unknown fan speed (:meth:`ThrottleSchedule.controller_residual`): each limit contributes an
+error that rises with fan speed and is zero on its limit; ``min`` of speeds is ``max`` of errors
+and vice versa. Minima and maxima are smooth (log-sum-exp, ``LIMIT_SHARPNESS`` per unit of
+error): away from a limit the selected speed departs from the exact one by
+``exp(-k gap) / k``, i.e. < 1e-10 when 10 % apart.
 
 Every function works on floats, numpy arrays and CasADi symbols.
 """
@@ -33,7 +48,8 @@ import numpy as np
 
 from .units import T_STD_K
 
-LIMIT_SHARPNESS = 5.0  # 1 / % of corrected speed
+LIMIT_SHARPNESS = 5.0  # 1 / % of corrected speed, N1 red line on the schedule
+CONTROL_SHARPNESS = 250.0  # 1 / unit of the controller errors (fan-speed fractions)
 
 
 def _is_casadi(x) -> bool:
@@ -58,12 +74,31 @@ def smooth_min(a, b, k=LIMIT_SHARPNESS):
     return np.minimum(a, b) - np.log1p(np.exp(-k * np.abs(d))) / k
 
 
+def smooth_max(a, b, k=LIMIT_SHARPNESS):
+    """C-infinity maximum, ``-smooth_min(-a, -b)``."""
+    return -smooth_min(-a, -b, k)
+
+
+def _tanh(x):
+    return ca.tanh(x) if _is_casadi(x) else np.tanh(x)
+
+
 @dataclass(frozen=True)
 class ThrottleSchedule:
     tra_idle: float = 20.0  # TRA at and below which the engine is at ground idle [%]
     pct_idle: float = 25.0  # corrected fan speed at ground idle [%]
     knots: tuple = ((60.0, 84.93), (100.0, 100.0))  # C-MAPSS points (TRA, %)
     n1_max_pct: float = 106.0  # physical fan-speed red line [% of design]
+    n2_max: float = 1.05  # physical core-speed red line [fraction of design]
+    t48_max: float = 1.12  # T48 limit [fraction of the SLS take-off design T48]
+    n2_min_ground: float = 0.50  # minimum physical core speed on the ground (below idle)
+    n2_min_flight: float = 0.70  # minimum physical core speed in flight (flight idle)
+    mach_flight: tuple = (0.05, 0.15)  # Mach band of the ground -> flight idle switch
+    # fan-speed fraction per unit of each limited quantity near its limit (makes the errors
+    # comparable): the core speed moves about half as much as the fan speed, T48 by about
+    # 0.7 of the design value per unit of fan speed
+    gain_n2: float = 2.0
+    gain_t48: float = 1.5
 
     def _points(self):
         pts = ((self.tra_idle, self.pct_idle),) + tuple(self.knots)
@@ -97,6 +132,26 @@ class ThrottleSchedule:
         """Commanded corrected fan speed [%]: the schedule, limited by the N1 red line."""
         n1_limit = self.n1_max_pct / _sqrt(T2_K / T_STD_K)
         return smooth_min(self.demand_pct(tra), n1_limit)
+
+    def n2_min(self, mach):
+        """Minimum physical core speed [fraction of design]: ground idle value on the ground,
+        flight idle value in flight (above ``mach_flight``), joined smoothly."""
+        lo, hi = self.mach_flight
+        s = 0.5 * (1.0 + _tanh((mach - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
+        return self.n2_min_ground + (self.n2_min_flight - self.n2_min_ground) * s
+
+    def controller_residual(self, n_fan, n_cmd, n2, t48, mach):
+        """Residual of the controller's speed selection (module doc) in the fan speed
+        ``n_fan`` [fraction of design corrected speed]; ``n_cmd`` the commanded corrected
+        speed, ``n2`` the physical core speed and ``t48`` the T48, both relative to design;
+        ``mach`` selects ground or flight idle."""
+        k = CONTROL_SHARPNESS
+        e_cmd = n_fan - n_cmd
+        e_n2max = self.gain_n2 * (n2 - self.n2_max)
+        e_t48 = self.gain_t48 * (t48 - self.t48_max)
+        e_n2min = self.gain_n2 * (n2 - self.n2_min(mach))
+        lowest_max = smooth_max(smooth_max(e_cmd, e_n2max, k), e_t48, k)
+        return smooth_min(lowest_max, e_n2min, k)
 
     def tra_from_pct(self, pct):
         """The TRA [%] whose scheduled speed is ``pct`` (inverse of :meth:`demand_pct` above

@@ -5,11 +5,12 @@ Stations (SAE ARP755): 0 free stream, 2 fan face, 21 fan exit (both streams), 15
 inlet (after the HPT coolant W31 joins), 45/48 HPT exit (``P45``, ``T48``), 49 LPT rotor inlet
 (after the LPT coolant W32 joins), 50 LPT exit, 8 core nozzle throat.
 
-Off-design the cycle is a residual system ``r(x; w, theta, p) = 0`` in seven unknowns ``x``::
+Off-design the cycle is a residual system ``r(x; w, theta, p) = 0`` in eight unknowns ``x``::
 
-    x = [beta_fan, beta_LPC, beta_HPC, n_HPC, T40/T40_des, PR_HPT/PR_HPT_des, PR_LPT/PR_LPT_des]
+    x = [beta_fan, beta_LPC, beta_HPC, n_HPC, T40/T40_des, PR_HPT/PR_HPT_des, PR_LPT/PR_LPT_des,
+         n_fan]
 
-and seven residuals, each scaled by its design value::
+and eight residuals, each scaled by its design value::
 
     r0 bypass nozzle flow      = bypass flow (fan flow - LPC flow) + VBV bleed
     r1 HPC map flow            = LPC map flow - VBV bleed (- any bleed an effect adds)
@@ -18,11 +19,13 @@ and seven residuals, each scaled by its design value::
     r4 LPT flow capacity       = W49
     r5 LPT power * eta_mech    = fan + LPC power
     r6 core nozzle flow        = W50
+    r7 controller              : the fan speed the full-authority controller selects
 
-The fan speed is not an unknown: the controller holds the corrected fan speed on its TRA
-schedule (C-MAPSS; :mod:`schedule`, idle to maximum, limited by the N1 red line), so
-``Nf = Nf_des * PCNfR_cmd/100 * sqrt(T2/T_std)``, and the fuel flow ``Wf`` is an output
-(through T40). ``PCNfR_dmd`` is the schedule's demand before the limiter.
+The controller (:mod:`schedule`) holds the corrected fan speed ``n_fan`` on its TRA schedule
+(C-MAPSS; idle to maximum, with the N1 red line), unless a limiter takes over: the maximum
+core speed and the maximum T48 lower it, the minimum core speed (flight idle) raises it.
+``Nf = Nf_des * n_fan * sqrt(T2/T_std)``; the fuel flow ``Wf`` is an output (through T40).
+``PCNfR_dmd`` is the schedule's demand before the limiters; ``NRf`` the speed it holds.
 
 Extension point. Every quantity that an optional physical effect may change passes through
 ``hook(name, value, **station)`` (see :mod:`engine_model.effects`, which lists the hooks and
@@ -39,9 +42,9 @@ from .design import EngineDesign
 from .units import LBF_TO_N, LBM_TO_KG, PSIA_TO_PA, R_PER_K, T_STD_K
 
 UNKNOWN_NAMES = ("beta_fan", "beta_LPC", "beta_HPC", "n_HPC", "T40_rel", "PR_HPT_rel",
-                 "PR_LPT_rel")
+                 "PR_LPT_rel", "n_fan")
 N_UNKNOWNS = len(UNKNOWN_NAMES)
-X_DESIGN = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)
+X_DESIGN = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 
 
 def _no_hook(name, value, **station):
@@ -65,7 +68,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     alt, mach, tra, T2_R = w[0], w[1], w[2], w[3]
     (fan_eff, fan_flow, lpc_eff, lpc_flow, hpc_eff, hpc_flow, hpt_eff, hpt_flow, lpt_eff,
      lpt_flow) = (theta[i] for i in range(10))
-    beta_fan, beta_lpc, beta_hpc, n_hpc, t40_rel, prh_rel, prl_rel = (x[i] for i in range(7))
+    (beta_fan, beta_lpc, beta_hpc, n_hpc, t40_rel, prh_rel, prl_rel,
+     n_fan) = (x[i] for i in range(8))
 
     # --- free stream and inlet ---
     T2 = T2_R / R_PER_K
@@ -74,9 +78,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     Pt0 = P_amb * atmosphere.total_pressure_ratio(Ts0, T2)
     V0 = atmosphere.flight_speed(Ts0, mach)
 
-    # --- controller: corrected fan speed on the TRA schedule, N1 red line ---
+    # --- controller: corrected fan speed (an unknown; residual r7 below) ---
     pct_dmd = d.nf_demand_pct(tra)
-    n_fan = d.nf_command_pct(tra, T2) / 100.0
     Nf = s.Nf_rpm * n_fan * ca.sqrt(T2 / T_STD_K)
 
     # --- fan (its modifier hooks see the free-stream Pt0: they precede the intake loss) ---
@@ -98,8 +101,9 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     W22, T24, P24 = lpc["W"], lpc["T_out"], lpc["P_out"]
 
     # --- variable bleed valves: booster-exit air dumped into the bypass duct at part power ---
-    W_vbv = components.handling_bleed_fraction(n_fan, s.vbv_max, s.vbv_n_mid,
-                                               s.vbv_width) * W22
+    match = n_hpc**d.hpc.k_ch / n_lpc**d.lpc.k_ch  # HPC over booster flow capacity
+    W_vbv = components.handling_bleed_fraction(match, s.vbv_max, s.vbv_m_open,
+                                               s.vbv_m_close) * W22
 
     # --- bypass duct and nozzle (the VBV air mixes into the bypass stream) ---
     W13 = W2 - W22
@@ -174,6 +178,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
         (W49 - lpt["W_cap"]) / d.W48_des,
         (s.eta_mech * W49 * lpt["dh"] - P_lp) / d.P_lp_des,
         (W50 - core["W"]) / d.W50_des,
+        s.throttle.controller_residual(n_fan, d.nf_command_pct(tra, T2) / 100.0,
+                                       Nc / s.Nc_rpm, T48 / des["T48"], mach),
     )
 
     # --- derived outputs ---
