@@ -29,7 +29,14 @@ def duct_loss(P_in, Wc, Wc_des, dp_des):
 
 
 def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
-    """Compressor on its map: corrected flow, exit state, specific work and stall margin."""
+    """Compressor on its map: corrected flow, exit state, specific work and stall margin.
+
+    The map (:class:`maps.CompressorMap`) gives the isentropic head, hence the pressure
+    ratio, at ``(n, beta)``; the efficiency (scaled by ``1 + eff_mod``) gives the specific
+    work ``dh = head / eta``. The stall margin is taken at constant corrected speed (SAE
+    ARP1420; Walsh & Fletcher ch. 5), ``SM = 100 (PR_surge(N) / PR - 1)``, against the surge
+    line of the compressor's own flow capacity (:meth:`maps.CompressorMap.beta_surge`).
+    """
     wc = cmap.flow(n, beta, flow_mod)
     W = physical_flow(wc, T_in, P_in)
     head = cmap.head(n, beta) * T_in  # isentropic specific work [J/kg]
@@ -41,13 +48,41 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
     dh = head / eta
     T_out = gas.t_from_h(h_in + dh, far, T_in + dh / cp_in)
     # surge line at the same corrected speed
-    head_s = cmap.head(n, cmap.beta_surge) * T_in
+    head_s = cmap.head(n, cmap.beta_surge(n, flow_mod)) * T_in
     T_is_s = gas.t_from_h(h_in + head_s, far, T_in + head_s / cp_in)
     pr_s = gas.pressure_ratio_isentropic(T_in, T_is_s, far)
     return {
         "Wc": wc, "W": W, "T_out": T_out, "P_out": P_in * pr, "PR": pr, "eta": eta,
-        "dh": dh, "SM": 100.0 * (pr_s / pr - 1.0),
+        "dh": dh, "SM": 100.0 * (pr_s / pr - 1.0), "PR_surge": pr_s,
     }
+
+
+def smooth_step(t):
+    """C-infinity step from 0 (t <= 0) to 1 (t >= 1), exactly flat outside [0, 1]:
+    ``e^(-1/t) / (e^(-1/t) + e^(-1/(1-t)))`` on the argument clipped to [1e-6, 1 - 1e-6]."""
+    tc = ca.fmin(ca.fmax(t, 1e-6), 1.0 - 1e-6)
+    a = ca.exp(-1.0 / tc)
+    return a / (a + ca.exp(-1.0 / (1.0 - tc)))
+
+
+def handling_bleed_fraction(match, f_max, m_open, m_close):
+    """Variable-bleed-valve (VBV) schedule: fraction of the booster exit flow dumped into the
+    bypass duct, ``f = f_max * smooth_step((m_close - m) / (m_close - m_open))``: fully open
+    (``f_max``) at ``m <= m_open``, shut (exactly 0) at ``m >= m_close``.
+
+    The booster feeds the HPC. At part speed a multistage HPC's flow capacity falls faster
+    than the booster's (``Wc ~ n^k_ch`` with a larger exponent), which throttles the booster
+    toward surge; bleeding booster air into the fan stream lowers its working line (Walsh &
+    Fletcher, *Gas Turbine Performance*, ch. 5.2.6 and 7.2, handling bleed; the CFM56's VBVs,
+    Linke-Diesinger, *Systems of Commercial Turbofan Engines*, Springer 2008, ch. 4: fully
+    open at idle, closed at high power, scheduled on the corrected core and fan speeds). The
+    schedule variable here is that speed match itself,
+    ``m = n_HPC^k_HPC / n_LPC^k_LPC`` (1 at the design point): the ratio of the HPC's to the
+    booster's flow capacity at the current corrected speeds. The step is C-infinity, so the
+    model stays differentiable, and exactly shut at high power, so the design point has no
+    bleed.
+    """
+    return f_max * smooth_step((m_close - match) / (m_close - m_open))
 
 
 def burner(T_in, P_in, W_air, T_out, dp, eta_b, lhv=gas.LHV_KEROSENE):

@@ -17,10 +17,11 @@ the five other reference points are off-design predictions (README, "Model versu
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import fsolve
+from scipy.optimize import brentq, fsolve
 
 from . import atmosphere, components, gas
 from .maps import CompressorMap, TurbineMap
+from .schedule import ThrottleSchedule
 from .units import LBF_TO_N, LBM_TO_KG, P_STD_PA, PSIA_TO_PA, T_STD_K, r_to_k
 
 
@@ -53,23 +54,62 @@ class DesignSpec:
     mach_hpc_exit: float = 0.25
     nozzle_cd: float = 0.98
     nozzle_cv: float = 0.99
-    sm_fan: float = 18.0  # design stall margins [%]
+    # design stall margins at SLS take-off [%], at constant corrected speed (components.
+    # compressor); class-typical (Walsh & Fletcher ch. 5.2.5: 15-25 % on core compressors,
+    # 10-20 % on fans at take-off). The booster's pressure ratio is only 1.31, so its 14 % in
+    # pressure ratio is a 50 % rise of its isentropic head.
+    sm_fan: float = 12.0
     sm_lpc: float = 14.0
     sm_hpc: float = 25.0
-    # TRA -> demanded corrected fan speed [%]: linear through the two points the reference
-    # data show (TRA 60 -> 84.93 %, TRA 100 -> 100 %); C-MAPSS publishes no other point
-    tra_schedule: tuple = ((60.0, 84.93), (100.0, 100.0))
-    # Map shape parameters (see maps.py). The speed exponents k_flow and k_head place the
-    # peak-efficiency ridge (beta = 0) on the sea-level-static working line, as compressor
-    # designers do: they were found once by solving the SLS working line at TRA 50 and moving
-    # each exponent until beta = 0 there (script: benchmarks/fit_map_exponents.py). Slopes along
-    # a speed line and efficiency curvatures are class-typical (Walsh & Fletcher ch. 5).
+    # variable bleed valves (components.handling_bleed_fraction), scheduled on the match of
+    # HPC to booster flow capacity m (1 at design, about 0.92 at cruise): 30 % of the booster
+    # flow when the HPC swallows little (m <= 0.76: flight idle at altitude), shut at
+    # m >= 0.90 (take-off, climb and cruise; at sea-level part power m > 1)
+    vbv_max: float = 0.30
+    vbv_m_open: float = 0.76
+    vbv_m_close: float = 0.90
+    # TRA -> corrected fan speed, idle to maximum, with the limiters (schedule.py)
+    throttle: ThrottleSchedule = field(default_factory=ThrottleSchedule)
+    # Compressor maps (maps.py). Class-typical shape parameters, none fitted to an operating
+    # point of the model or of C-MAPSS:
+    # - phi_ch1: choke flow / design flow at 100 % speed: 5-6 % for the booster and HPC; 12 %
+    #   for the fan, whose working line at the same corrected speed lies nearer choke at
+    #   cruise (choked bypass nozzle) than at sea-level take-off (unchoked nozzle).
+    # - k_ch: choke flow ~ n^k_ch: 2.5 for a 9-10 stage HPC whose rear stages choke at part
+    #   speed (Walsh & Fletcher ch. 5.2; Saravanamuttoo et al. ch. 9 on part-speed
+    #   mismatch), 1 for the booster, 0.5 for a single fan stage whose throats choke at a
+    #   corrected flow that falls more slowly than speed.
+    # - k_work: 1 for the single-stage fan (physical flow coefficient); k_ch for the
+    #   multistage booster and HPC (stage-averaged flow coefficient, maps.py item 1).
+    # - k_s: the fan's stall flow coefficient ~ n^0.1 (transonic stall at high speed).
+    # - kappa: relative slope of the specific-work line along a speed line. One repeating
+    #   stage has kappa = phi_d (tan a1 + tan b2) / psi_d = 1.5 (Dixon & Hall's typical stage,
+    #   phi_d 0.5, psi_d 0.4); stage matching steepens the overall characteristic of a
+    #   multistage compressor at high speed (Cumpsty, Compressor Aerodynamics, ch. 4;
+    #   Saravanamuttoo et al. ch. 5.6) and a transonic fan's high-speed lines are nearly
+    #   vertical (unique incidence). Values 3-5.5 give 100 % speed lines that span 4-8 %
+    #   of flow between the take-off point and stall, as class maps do.
+    # - c_phi: incidence-loss curvature: 4-6 points of efficiency between peak and surge.
+    # - (n_pk, phi_opt1): the island's peak, the aerodynamic design point: the cruise point
+    #   (35 kft, Mach 0.8, ISA, the profiles' mid cruise TRA 70), where a civil engine spends
+    #   most of its life and for which its compressors are designed (Walsh & Fletcher ch. 7.3;
+    #   Cumpsty, Jet Propulsion, ch. 11): the (n, phi_work) of that point as printed by
+    #   ``benchmarks/map_design_point.py``. The fan's values are stable to 0.001; the booster
+    #   and HPC values are those of the iteration before the final VBV schedule, and the
+    #   script now prints (0.919, 0.930) and (0.921, 0.992): moving them there brings the
+    #   booster's flight-idle working line closer to surge and costs convergence (open).
+    # - c_n: efficiency fall-off with speed: 5-10 points from the design speed to 50-60 %.
+    # - lam (beta scale) is a parametrisation choice and does not change the map's shape in
+    #   physical coordinates.
     fan_map: dict = field(default_factory=lambda: dict(
-        k_flow=1.088, k_head=2.029, s_flow=0.04, s_head=0.10, c_eta_n=0.5, c_eta_b=0.05))
+        phi_ch1=1.12, k_ch=0.5, k_work=1.0, k_s=0.1, lam=1.0, kappa=5.0, c_phi=4.0, c_n=0.6,
+        n_pk=0.901, phi_opt1=1.034))
     lpc_map: dict = field(default_factory=lambda: dict(
-        k_flow=1.223, k_head=3.023, s_flow=0.05, s_head=0.12, c_eta_n=0.5, c_eta_b=0.05))
+        phi_ch1=1.06, k_ch=1.0, k_work=1.0, lam=1.0, kappa=5.5, c_phi=8.0, c_n=0.6, n_pk=0.919,
+        phi_opt1=0.956))
     hpc_map: dict = field(default_factory=lambda: dict(
-        k_flow=2.577, k_head=1.581, s_flow=0.05, s_head=0.12, c_eta_n=0.5, c_eta_b=0.05))
+        phi_ch1=1.05, k_ch=2.5, k_work=2.5, lam=1.0, kappa=3.0, c_phi=8.0, c_n=0.6, n_pk=0.930,
+        phi_opt1=0.992))
     c_eta_hpt: float = 0.5
     c_eta_lpt: float = 0.5
 
@@ -109,22 +149,38 @@ class EngineDesign:
     point: dict  # every design-point quantity, SI
 
     def nf_demand_pct(self, tra):
-        """Demanded corrected fan speed [%] for throttle-resolver angle ``tra`` [%]."""
-        (t0, n0), (t1, n1) = self.spec.tra_schedule
-        return n0 + (n1 - n0) * (tra - t0) / (t1 - t0)
+        """Scheduled corrected fan speed [%] for throttle-resolver angle ``tra`` [%]
+        (:class:`schedule.ThrottleSchedule`, before the limiter)."""
+        return self.spec.throttle.demand_pct(tra)
+
+    def nf_command_pct(self, tra, T2_K):
+        """Commanded corrected fan speed [%]: the schedule limited by the N1 red line."""
+        return self.spec.throttle.command_pct(tra, T2_K)
 
     def tra_from_pct(self, pct):
         """The throttle-resolver angle [%] that demands corrected fan speed ``pct`` [%] (the
-        inverse of :meth:`nf_demand_pct`)."""
-        (t0, n0), (t1, n1) = self.spec.tra_schedule
-        return t0 + (pct - n0) * (t1 - t0) / (n1 - n0)
+        inverse of :meth:`nf_demand_pct` above idle)."""
+        return self.spec.throttle.tra_from_pct(pct)
 
 
-def _beta_surge(cmap_kw, T_in, head_des, pr_des, sm):
-    pr_s = pr_des * (1.0 + sm / 100.0)
+def _compressor_map(kw, wc, T_in, head, dh, eta, pr, sm):
+    """The map of one compressor scaled at the design point, its stall flow coefficient
+    ``phi_s1`` placed so that the SLS design point has stall margin ``sm`` [%] at constant
+    corrected speed (the definition of :func:`components.compressor`)."""
+    base = CompressorMap(wc_des=wc, work_des=dh / T_in, eta_des=eta, phi_s1=0.5, **kw)
+    pr_s = pr * (1.0 + sm / 100.0)
     T_is_s = gas.t_isentropic(T_in, 0.0, pr_s)
-    head_s = gas.h(T_is_s) - gas.h(T_in)
-    return (head_s / head_des - 1.0) / cmap_kw["s_head"]
+    head_s = float(gas.h(T_is_s) - gas.h(T_in)) / T_in
+
+    def gap(b):
+        return float(base.head(1.0, b)) - head_s
+
+    grid = np.linspace(0.0, 15.0, 301)
+    b_top = grid[int(np.argmax([gap(b) for b in grid]))]  # peak of the 100 % speed line
+    if gap(b_top) <= 0.0:
+        raise ValueError(f"stall margin {sm} % is beyond the peak of the 100 % speed line")
+    b_s = brentq(gap, 0.0, b_top, xtol=1e-14)
+    return replace(base, phi_s1=float(base.phi(1.0, b_s)))
 
 
 def _nozzle_area(Pt, Tt, far, P_amb, W, cd, cv):
@@ -231,15 +287,9 @@ def design_engine(spec: DesignSpec | None = None) -> EngineDesign:
     wc2 = float(components.corrected_flow(W2, T2, P2))
     wc21 = float(components.corrected_flow(W25, T21, P21))
     wc25 = float(components.corrected_flow(W25, T25, P25))
-    fan = CompressorMap(wc_des=wc2, head_des=head_fan / T2, eta_des=s.eta_fan,
-                        beta_surge=_beta_surge(s.fan_map, T2, head_fan, pr_fan, s.sm_fan),
-                        **s.fan_map)
-    lpc = CompressorMap(wc_des=wc21, head_des=head_lpc / T21, eta_des=s.eta_lpc,
-                        beta_surge=_beta_surge(s.lpc_map, T21, head_lpc, pr_lpc, s.sm_lpc),
-                        **s.lpc_map)
-    hpc = CompressorMap(wc_des=wc25, head_des=head_hpc / T25, eta_des=eta_hpc,
-                        beta_surge=_beta_surge(s.hpc_map, T25, head_hpc, pr_hpc, s.sm_hpc),
-                        **s.hpc_map)
+    fan = _compressor_map(s.fan_map, wc2, T2, head_fan, dh_fan, s.eta_fan, pr_fan, s.sm_fan)
+    lpc = _compressor_map(s.lpc_map, wc21, T21, head_lpc, dh_lpc, s.eta_lpc, pr_lpc, s.sm_lpc)
+    hpc = _compressor_map(s.hpc_map, wc25, T25, head_hpc, dh_hpc, eta_hpc, pr_hpc, s.sm_hpc)
     dh_is_hpt = hs["dh_hpt"] / s.eta_hpt
     dh_is_lpt = hs["dh_lpt"] / eta_lpt
     hpt = TurbineMap(phi_des=hs["W41"] * np.sqrt(hs["T41"]) / P40, pr_des=hs["pr_hpt"],

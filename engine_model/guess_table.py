@@ -23,7 +23,7 @@ import numpy as np
 
 from .units import R_PER_K
 
-TABLE_PCT = np.linspace(60.0, 104.0, 23)
+TABLE_PCT = np.linspace(24.0, 104.0, 41)  # from below ground idle (25 %) to maximum
 TABLE_MACH = np.linspace(0.0, 0.9, 10)
 TABLE_T2 = (540.0, 470.0, 400.0)  # degR, descending
 I_T40 = 4  # position of T40 among the unknowns (stored divided by T2)

@@ -312,15 +312,14 @@ class EngineModel:
         return res
 
     def valid_on_maps(self, x: np.ndarray) -> np.ndarray:
-        """True where every compressor operates where its map means something: the head and
-        flow factors along the speed line, ``1 + s_head beta`` and ``1 - s_flow beta``, stay
-        above 0.1. A root of the residual system outside that region is non-physical (e.g.
-        a compressor with a negative head) and is not reported as converged."""
+        """True where every compressor operates where its map means something
+        (:meth:`maps.CompressorMap.on_map`: from deep choke to just past the surge line). A
+        root of the residual system outside that region is non-physical and is not reported
+        as converged."""
         d = self.design
         ok = np.ones(len(x), bool)
         for j, cmap in enumerate((d.fan, d.lpc, d.hpc)):
-            b = x[:, j]
-            ok &= (1.0 + cmap.s_head * b > 0.1) & (1.0 - cmap.s_flow * b > 0.1)
+            ok &= cmap.on_map(x[:, j])
         return ok
 
     def _reject_off_map(self, res: SolveResult):

@@ -33,7 +33,8 @@ import numpy as np
 
 # step limits per unknown (scaled units) of the damped iteration: the three compressor map
 # coordinates may move one unit per step, the spool speeds and temperatures a few per cent
-STEP_LIMIT = np.array([1.0, 1.0, 1.0, 0.08, 0.15, 0.25, 0.25])
+# (order of turbofan.UNKNOWN_NAMES; the last is the fan speed the controller selects)
+STEP_LIMIT = np.array([1.0, 1.0, 1.0, 0.08, 0.15, 0.25, 0.25, 0.08])
 
 
 @dataclass
@@ -76,7 +77,7 @@ class JacobianStore:
     HAVE: np.ndarray
 
     @classmethod
-    def empty(cls, n: int, nx: int = 7) -> JacobianStore:
+    def empty(cls, n: int, nx: int = len(STEP_LIMIT)) -> JacobianStore:
         return cls(np.zeros((n, nx * nx)), np.zeros((n, nx), np.int32), np.zeros(n, np.int32))
 
     def head(self, n: int) -> JacobianStore:

@@ -5,23 +5,27 @@ Stations (SAE ARP755): 0 free stream, 2 fan face, 21 fan exit (both streams), 15
 inlet (after the HPT coolant W31 joins), 45/48 HPT exit (``P45``, ``T48``), 49 LPT rotor inlet
 (after the LPT coolant W32 joins), 50 LPT exit, 8 core nozzle throat.
 
-Off-design the cycle is a residual system ``r(x; w, theta, p) = 0`` in seven unknowns ``x``::
+Off-design the cycle is a residual system ``r(x; w, theta, p) = 0`` in eight unknowns ``x``::
 
-    x = [beta_fan, beta_LPC, beta_HPC, n_HPC, T40/T40_des, PR_HPT/PR_HPT_des, PR_LPT/PR_LPT_des]
+    x = [beta_fan, beta_LPC, beta_HPC, n_HPC, T40/T40_des, PR_HPT/PR_HPT_des, PR_LPT/PR_LPT_des,
+         n_fan]
 
-and seven residuals, each scaled by its design value::
+and eight residuals, each scaled by its design value::
 
-    r0 bypass nozzle flow      = bypass flow (fan flow - LPC flow)
-    r1 HPC map flow            = LPC map flow (no bleed between them)
+    r0 bypass nozzle flow      = bypass flow (fan flow - LPC flow) + VBV bleed
+    r1 HPC map flow            = LPC map flow - VBV bleed (- any bleed an effect adds)
     r2 HPT flow capacity       = W41
     r3 HPT power * eta_mech    = HPC power (+ power off-take)
     r4 LPT flow capacity       = W49
     r5 LPT power * eta_mech    = fan + LPC power
     r6 core nozzle flow        = W50
+    r7 controller              : the fan speed the full-authority controller selects
 
-The fan speed is not an unknown: the controller holds the corrected fan speed on its TRA
-schedule (C-MAPSS), so ``Nf = Nf_des * PCNfR_dmd/100 * sqrt(T2/T_std)``, and the fuel flow
-``Wf`` is an output (through T40).
+The controller (:mod:`schedule`) holds the corrected fan speed ``n_fan`` on its TRA schedule
+(C-MAPSS; idle to maximum, with the N1 red line), unless a limiter takes over: the maximum
+core speed and the maximum T48 lower it, the minimum core speed (flight idle) raises it.
+``Nf = Nf_des * n_fan * sqrt(T2/T_std)``; the fuel flow ``Wf`` is an output (through T40).
+``PCNfR_dmd`` is the schedule's demand before the limiters; ``NRf`` the speed it holds.
 
 Extension point. Every quantity that an optional physical effect may change passes through
 ``hook(name, value, **station)`` (see :mod:`engine_model.effects`, which lists the hooks and
@@ -38,9 +42,9 @@ from .design import EngineDesign
 from .units import LBF_TO_N, LBM_TO_KG, PSIA_TO_PA, R_PER_K, T_STD_K
 
 UNKNOWN_NAMES = ("beta_fan", "beta_LPC", "beta_HPC", "n_HPC", "T40_rel", "PR_HPT_rel",
-                 "PR_LPT_rel")
+                 "PR_LPT_rel", "n_fan")
 N_UNKNOWNS = len(UNKNOWN_NAMES)
-X_DESIGN = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0)
+X_DESIGN = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 
 
 def _no_hook(name, value, **station):
@@ -64,7 +68,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     alt, mach, tra, T2_R = w[0], w[1], w[2], w[3]
     (fan_eff, fan_flow, lpc_eff, lpc_flow, hpc_eff, hpc_flow, hpt_eff, hpt_flow, lpt_eff,
      lpt_flow) = (theta[i] for i in range(10))
-    beta_fan, beta_lpc, beta_hpc, n_hpc, t40_rel, prh_rel, prl_rel = (x[i] for i in range(7))
+    (beta_fan, beta_lpc, beta_hpc, n_hpc, t40_rel, prh_rel, prl_rel,
+     n_fan) = (x[i] for i in range(8))
 
     # --- free stream and inlet ---
     T2 = T2_R / R_PER_K
@@ -73,9 +78,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     Pt0 = P_amb * atmosphere.total_pressure_ratio(Ts0, T2)
     V0 = atmosphere.flight_speed(Ts0, mach)
 
-    # --- controller: corrected fan speed on the TRA schedule ---
+    # --- controller: corrected fan speed (an unknown; residual r7 below) ---
     pct_dmd = d.nf_demand_pct(tra)
-    n_fan = pct_dmd / 100.0
     Nf = s.Nf_rpm * n_fan * ca.sqrt(T2 / T_STD_K)
 
     # --- fan (its modifier hooks see the free-stream Pt0: they precede the intake loss) ---
@@ -96,16 +100,22 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
                                 hook("LPC_flow_mod", lpc_flow, **at21))
     W22, T24, P24 = lpc["W"], lpc["T_out"], lpc["P_out"]
 
-    # --- bypass duct and nozzle ---
+    # --- variable bleed valves: booster-exit air dumped into the bypass duct at part power ---
+    match = n_hpc**d.hpc.k_ch / n_lpc**d.lpc.k_ch  # HPC over booster flow capacity
+    W_vbv = components.handling_bleed_fraction(match, s.vbv_max, s.vbv_m_open,
+                                               s.vbv_m_close) * W22
+
+    # --- bypass duct and nozzle (the VBV air mixes into the bypass stream) ---
     W13 = W2 - W22
     wc13 = components.corrected_flow(W13, T21, P21)
     P15 = components.duct_loss(P21, wc13, d.wc13_des, s.dp_bypass)
-    byp = components.convergent_nozzle(P15, T21, 0.0, P_amb, hook("A18", d.A18), s.nozzle_cd,
-                                       s.nozzle_cv)
+    m15 = components.mixer(W13, T21, 0.0, W_vbv, T24, 0.0)
+    byp = components.convergent_nozzle(P15, m15["T"], 0.0, P_amb, hook("A18", d.A18),
+                                       s.nozzle_cd, s.nozzle_cv)
 
     # --- LPC-HPC duct, HPC with coolant extraction ---
     W_bleed_24 = hook("W_bleed_24", 0.0 * W22, W22=W22)  # handling / customer bleed at station 24
-    W25_up = W22 - W_bleed_24
+    W25_up = W22 - W_vbv - W_bleed_24
     wc24 = components.corrected_flow(W22, T24, P24)
     P25 = components.duct_loss(P24, wc24, d.wc24_des, s.dp_icd)
     T25 = T24
@@ -161,13 +171,15 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
 
     P_lp = W2 * fan["dh"] + W22 * lpc["dh"]
     res = ca.vertcat(
-        (W13 - byp["W"]) / d.W13_des,
+        (W13 + W_vbv - byp["W"]) / d.W13_des,
         (W25_up - W25) / d.W25_des,
         (W41 - hpt["W_cap"]) / d.W4_des,
         (s.eta_mech * W41 * hpt["dh"] - P_hpc - P_offtake) / d.P_hp_des,
         (W49 - lpt["W_cap"]) / d.W48_des,
         (s.eta_mech * W49 * lpt["dh"] - P_lp) / d.P_lp_des,
         (W50 - core["W"]) / d.W50_des,
+        s.throttle.controller_residual(n_fan, d.nf_command_pct(tra, T2) / 100.0,
+                                       Nc / s.Nc_rpm, T48 / des["T48"], mach),
     )
 
     # --- derived outputs ---
@@ -183,10 +195,12 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
         T48=T48, P45=P45, W48=W48, T49=T49, W49=W49, T50=T50, P50=P50, W50=W50, far50=far49,
         Fn=Fn, Fg_bypass=byp["Fg"], Fg_core=core["Fg"], P_hpc=P_hpc, P_lp=P_lp,
         P_hpt=W41 * hpt["dh"], P_lpt=W49 * lpt["dh"], P_offtake=P_offtake, W_cust=W_cust,
-        W_bleed_24=W_bleed_24, T_int=T_int, eta_fan=fan["eta"], eta_lpc=lpc["eta"],
-        eta_hpc=hpc["eta"], eta_hpt=hpt["eta"], eta_lpt=lpt["eta"], eta_b=eta_b,
+        W_bleed_24=W_bleed_24, W_vbv=W_vbv, T15=m15["T"], T_int=T_int, eta_fan=fan["eta"],
+        eta_lpc=lpc["eta"], eta_hpc=hpc["eta"], eta_hpt=hpt["eta"], eta_lpt=lpt["eta"], eta_b=eta_b,
         SmFan=fan["SM"], SmLPC=lpc["SM"], SmHPC=hpc["SM"], n_fan=n_fan, n_lpc=n_lpc,
-        pr_fan=fan["PR"], pr_lpc=lpc["PR"], pr_hpc=hpc["PR"], pr_hpt=pr_hpt, pr_lpt=pr_lpt,
+        pr_fan=fan["PR"], pr_lpc=lpc["PR"], pr_hpc=hpc["PR"], pr_surge_fan=fan["PR_surge"],
+        pr_surge_lpc=lpc["PR_surge"], pr_surge_hpc=hpc["PR_surge"], wc_fan=fan["Wc"],
+        wc_lpc=lpc["Wc"], wc_hpc=hpc["Wc"], pr_hpt=pr_hpt, pr_lpt=pr_lpt,
         x18=byp["x"], x8=core["x"], x18_crit=byp["x_crit"], x8_crit=core["x_crit"],
     )
     return res, st

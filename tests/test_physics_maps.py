@@ -1,0 +1,196 @@
+"""Physics of the compressor maps, the surge line and the throttle schedule (issue 12).
+
+Map properties on every speed line of every compressor (pressure ratio and specific work fall
+strictly from surge to choke, corrected flow saturates at choke), the surge line moving with
+flow-capacity loss, positive stall margins of a new engine over the envelope, component
+efficiencies in a documented range, and a throttle response that is monotonic in TRA on a grid
+of the envelope.
+"""
+
+import numpy as np
+import pytest
+
+from engine_model import THETA_NAMES, atmosphere, gas, turbofan
+from engine_model.design import DesignSpec
+from engine_model.schedule import ThrottleSchedule
+
+from .conftest import w_rows
+
+N_TH = len(THETA_NAMES)
+NRF_DES = DesignSpec().Nf_rpm  # design corrected fan speed [rpm]
+SPEEDS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.05)
+T_IN = 288.15
+
+
+def _line(cmap, n, flow_mod=0.0, n_pts=2000):
+    """One speed line from the surge line to deep choke: beta, Wc, PR, specific work."""
+    b = np.linspace(float(cmap.beta_surge(n, flow_mod)), cmap.beta_choke - 4.0, n_pts)
+    wc = np.array([float(cmap.flow(n, x, flow_mod)) for x in b])
+    head = np.array([float(cmap.head(n, x)) for x in b]) * T_IN
+    work = np.array([float(cmap.work(n, x)) for x in b]) * T_IN
+    T_is = gas.t_from_h(gas.h(T_IN) + head, 0.0, T_IN + head / 1004.0)
+    pr = np.asarray(gas.pressure_ratio_isentropic(T_IN, T_is, 0.0), float).ravel()
+    return b, wc, pr, work
+
+
+@pytest.mark.parametrize("comp", ["fan", "lpc", "hpc"])
+def test_every_speed_line_falls_from_surge_to_choke(model, comp):
+    """From the surge line toward choke, pressure ratio and specific work fall strictly and the
+    corrected flow rises, saturating at the choke flow. A fan's low-speed lines reach zero work
+    (windmilling: the blades turn the flow less than the inflow angle) before their passages
+    choke; the lines are checked down to that point, and choke saturation where it is reached
+    with the blades still doing work."""
+    cmap = getattr(model.design, comp)
+    for n in SPEEDS:
+        b, wc, pr, work = _line(cmap, n)
+        keep = work > 0.0
+        b, wc, pr, work = b[keep], wc[keep], pr[keep], work[keep]
+        assert len(b) > 50, (comp, n)
+        assert np.all(np.diff(pr) < 0.0), (comp, n)  # pressure ratio falls toward choke
+        assert np.all(np.diff(work) < 0.0), (comp, n)  # Euler: specific work falls too
+        assert np.all(np.diff(wc) > 0.0), (comp, n)  # flow rises toward choke ...
+        assert pr[0] > 1.0
+        if keep.all():  # ... and saturates at the choke flow, where PR drops to ~1
+            wc_choke = cmap.wc_des * n * float(cmap.phi_choke(n))
+            assert wc_choke * (1.0 - 1e-4) < wc[-1] < wc_choke, (comp, n)
+            assert pr[-1] < 1.0 + 0.02 * (pr[0] - 1.0), (comp, n)
+    # the core compressors, and the fan at and above 90 % speed, reach choke doing work
+    for n in SPEEDS:
+        if comp != "fan" or n >= 0.9:
+            assert np.all(_line(cmap, n)[3] > 0.0), (comp, n)
+
+
+@pytest.mark.parametrize("comp", ["fan", "lpc", "hpc"])
+def test_efficiency_island_peaks_at_the_aero_design_point(model, comp):
+    cmap = getattr(model.design, comp)
+    n_grid = np.linspace(0.3, 1.05, 31)
+    b_grid = np.linspace(float(cmap.beta_surge(1.0)) + 1.0, cmap.beta_choke, 121)
+    eta = np.array([[float(cmap.eta_map(n, b)) for b in b_grid] for n in n_grid])
+    i, j = np.unravel_index(np.argmax(eta), eta.shape)
+    assert abs(n_grid[i] - cmap.n_pk) <= 0.03
+    assert abs(float(cmap.phi_work(n_grid[i], b_grid[j])) - cmap.phi_opt1) <= 0.01
+    assert eta.max() <= cmap.eta_pk + 1e-12 and eta.max() < 0.95
+
+
+@pytest.mark.parametrize("comp", ["fan", "lpc", "hpc"])
+def test_flow_capacity_loss_lowers_the_surge_line(model, comp):
+    cmap = getattr(model.design, comp)
+    for n in (0.5, 0.8, 1.0):
+        pr_new = _line(cmap, n)[2][0]
+        pr_fouled = _line(cmap, n, flow_mod=-0.02)[2][0]
+        assert pr_fouled < pr_new, (comp, n)
+
+
+def test_schedule_keeps_the_cmapss_points_and_idles():
+    s = ThrottleSchedule()
+    assert float(s.demand_pct(100.0)) == pytest.approx(100.0, abs=1e-12)
+    assert float(s.demand_pct(60.0)) == pytest.approx(84.93, abs=1e-12)
+    tra = np.linspace(15.0, 105.0, 901)
+    pct = s.demand_pct(tra)
+    assert np.all(np.diff(pct[tra >= s.tra_idle]) > 0.0)
+    assert np.all(pct[tra <= s.tra_idle] == s.pct_idle)
+    np.testing.assert_allclose(s.tra_from_pct(s.demand_pct(tra[tra > 21.0])),
+                               tra[tra > 21.0], atol=1e-3)
+    # the N1 red line limits the physical fan speed on a hot day only
+    cmd = s.command_pct(np.array([100.0, 105.0]), np.array([288.15, 330.0]))
+    assert cmd[0] == pytest.approx(100.0, abs=1e-8)
+    assert cmd[1] * np.sqrt(330.0 / 288.15) <= s.n1_max_pct + 1e-9
+
+
+# ------------------------------------------------------------------ envelope grid
+def _grid():
+    """(alt, Mach) pairs inside the CAS limit, ISA -15/0/+15 K, TRA 20..100 by 10."""
+    pairs = [(0.0, 0.0), (0.0, 0.3), (10000.0, 0.5), (25000.0, 0.62), (35000.0, 0.8),
+             (42000.0, 0.84)]
+    for alt, mach in pairs:
+        assert mach <= max(0.25, float(atmosphere.mach_from_cas(350.0 * 0.514444, alt))) + 0.05
+    rows = [(a, m, t, dT) for a, m in pairs for dT in (-15.0, 0.0, 15.0)
+            for t in np.arange(20.0, 100.1, 10.0)]
+    return rows
+
+
+@pytest.fixture(scope="module")
+def grid_run(model):
+    rows = _grid()
+    w = w_rows(rows)
+    ev = model.evaluate(w)
+    return rows, w, ev
+
+
+def test_envelope_grid_converges(grid_run):
+    _, _, ev = grid_run
+    assert ev.converged.all(), ev.index[~ev.converged].tolist()
+
+
+@pytest.mark.parametrize("channel", ["Wf", "Fn", "P30", "Nc", "T30", "T48"])
+def test_throttle_response_is_monotonic(grid_run, channel):
+    """Strictly increasing in TRA wherever the fan-speed schedule governs; where the flight-
+    idle limiter holds the engine (minimum core speed, low TRA in flight) the response is
+    flat, as a real engine's is below flight idle, and must not fall."""
+    rows, _, ev = grid_run
+    n_tra = len(np.arange(20.0, 100.1, 10.0))
+    y = ev[channel].to_numpy().reshape(-1, n_tra)
+    on_schedule = (np.abs(100.0 * ev.NRf.to_numpy() / NRF_DES - ev.PCNfR_dmd.to_numpy())
+                   < 1e-3).reshape(-1, n_tra)
+    for k in range(len(y)):
+        d = np.diff(y[k])
+        both = on_schedule[k, 1:] & on_schedule[k, :-1]
+        where = (channel, rows[k * n_tra][:2], rows[k * n_tra][3], y[k])
+        assert np.all(d[both] > 0.0), where
+        assert np.all(d >= -1e-9 * np.abs(y[k, 1:])), where
+    # the flat part is flight idle only: on the ground (Mach 0) every step is on schedule
+    assert on_schedule[[k for k in range(len(y)) if rows[k * n_tra][1] == 0.0]].all()
+
+
+def test_new_engine_fan_and_hpc_have_positive_stall_margins(grid_run):
+    _, _, ev = grid_run
+    for sm in ("SmFan", "SmHPC"):
+        assert (ev[sm] > 0.0).all(), (sm, ev[sm].min())
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "open (issue 12): the booster's working line reaches its surge line at flight idle below "
+    "25 kft and around TRA 50-55 at 42 kft (SmLPC down to -2.2 %); the VBV schedule on the "
+    "HPC/booster flow-capacity match does not open there"))
+def test_new_engine_booster_has_positive_stall_margin(grid_run):
+    _, _, ev = grid_run
+    assert (ev["SmLPC"] > 0.0).all(), ev["SmLPC"].min()
+
+
+# Component efficiencies at converged envelope points. Range: the maps' island peaks are
+# 0.91-0.93; 0.6 is the floor of a fan or booster at ground idle (25 % speed, far from
+# the design speed and incidence; Walsh & Fletcher ch. 7: 0.6-0.75 at idle).
+ETA_RANGE = {"eta_fan": (0.60, 0.93), "eta_lpc": (0.60, 0.93), "eta_hpc": (0.75, 0.93)}
+
+
+def test_component_efficiencies_stay_in_range(model, grid_run):
+    rows, w, _ = grid_run
+    res = model.solve(w)
+    vals = []
+    for k in range(len(w)):
+        _, st = turbofan.cycle(model.design, [float(v) for v in w[k]], [0.0] * N_TH,
+                               [float(v) for v in res.x[k]])
+        vals.append([float(st[name]) for name in ETA_RANGE])
+    vals = np.array(vals)
+    for j, (name, (lo, hi)) in enumerate(ETA_RANGE.items()):
+        assert vals[:, j].min() >= lo and vals[:, j].max() <= hi, (
+            name, vals[:, j].min(), vals[:, j].max())
+
+
+def test_flow_capacity_loss_consumes_stall_margin(model):
+    """-2 % flow capacity of a compressor lowers that compressor's stall margin (at constant
+    corrected speed) at SLS take-off, climb and cruise - except the booster at sea level: its
+    operating flow is set by the HPC behind it and its stall by a fixed blade incidence, so
+    both move by the same flow coefficient and, at constant speed, its margin is unchanged to
+    first order (+0.15 points measured at SLS TRA 100). Documented as open in the report."""
+    pts = [(0.0, 0.0, 100.0), (20000.0, 0.7, 90.0), (35000.0, 0.8, 70.0)]
+    for name, sm, where in (("fan_flow_mod", "SmFan", [0, 1, 2]),
+                            ("LPC_flow_mod", "SmLPC", [1, 2]),
+                            ("HPC_flow_mod", "SmHPC", [0, 1, 2])):
+        th = np.zeros((2 * len(pts), N_TH))
+        th[len(pts):, THETA_NAMES.index(name)] = -0.02
+        ev = model.evaluate(w_rows(pts * 2), th)
+        assert ev.converged.all()
+        new = ev[sm].to_numpy()[:len(pts)][where]
+        worn = ev[sm].to_numpy()[len(pts):][where]
+        assert np.all(worn < new), (name, new, worn)
