@@ -166,7 +166,8 @@ def test_two_real_runs_into_one_output(runner, tmp_path, small):
         second = run(runner, "calibrate", data, "--drift", "0.01", "--out", out)
         assert_error(second, "another hyprog run", f"process {first.pid}")
         first.send_signal(signal.SIGTERM)
-        assert first.wait(timeout=60) in (0, 128 + signal.SIGTERM)
+        rc = first.wait(timeout=60)
+        assert rc in (0, 128 + signal.SIGTERM), first.stderr.read().decode()
     finally:
         if first.poll() is None:
             first.kill()
