@@ -24,6 +24,7 @@ from typer.core import TyperGroup
 
 from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
 from cli import discover as discover_cmd
+from cli import pipeline as pipeline_cmd
 from cli.common import EXIT_USAGE, error_line, terminate_as_exit
 
 
@@ -85,6 +86,7 @@ app.command("train")(train.train)
 app.command("evaluate")(evaluate.evaluate)
 app.command("predict")(predict.predict)
 app.add_typer(experiment.app, name="experiment")
+app.command("pipeline")(pipeline_cmd.pipeline)
 
 
 def _version(value: bool):

@@ -1,0 +1,158 @@
+"""``run_pipeline``: every stage in order, each skipped when its output exists for the same
+configuration and input (:mod:`.state`), under one lock on the output folder.
+
+The output folder ``OUT`` is absent, empty, or one this function wrote before (it holds
+``pipeline.json``); anything else is refused, as is the current directory or a parent of it.
+One run at a time writes into it (:func:`engine_model.datasets.output_lock`). Every file is
+written atomically and every stage marks itself done last, so an interrupted run (Ctrl-C,
+SIGTERM, SIGKILL) leaves no half-written file, and the next run redoes only what was not
+finished and gives the numbers an uninterrupted run gives.
+
+Dependencies (what a stage's fingerprint holds besides its own table of the config):
+
+==========  ===================================================================
+calibrate   the data, ``[data] units``
+discover    the data, ``[data] units``, ``[calibrate]`` (its setup), the seed
+features    calibrate; with ``augment``: discover
+train       features, ``[data]`` (the split), the seed
+evaluate    train, features
+report      every stage above
+==========  ===================================================================
+
+So a changed option reruns its stage and the stages that read its output, and only those.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from engine_model.validation import InputError
+
+from ..outputs import write_json
+from . import report, stages, state
+from .state import data_fingerprint, fingerprint
+
+MARK = "pipeline.json"
+FORMAT = "hyprog-pipeline"
+STAGES = ("simulate", "calibrate", "discover", "features", "train", "evaluate", "report")
+
+
+def check_out(out: Path) -> None:
+    """``out`` may receive a pipeline run (module docstring)."""
+    p = Path(os.path.abspath(out))
+    cwd = Path.cwd().resolve()
+    if p.resolve() == cwd or p.resolve() in cwd.parents:
+        raise InputError(f"{out}: is the current directory or one of its parents; name a new "
+                         "folder (e.g. --out results)")
+    if not p.exists():
+        return
+    if not p.is_dir():
+        raise InputError(f"{out}: exists and is not a directory; choose another --out")
+    if not any(p.iterdir()):
+        return
+    try:
+        ok = json.loads((p / MARK).read_text()).get("format") == FORMAT
+    except (OSError, json.JSONDecodeError, AttributeError):
+        ok = False
+    if not ok:
+        raise InputError(f"{out}: exists and is not a hyprog pipeline folder (no {MARK}); "
+                         "choose another --out")
+
+
+def check_data(data: Path | None) -> None:
+    if data is not None and not Path(data).exists():
+        raise InputError(f"{data}: no such file or directory")
+
+
+def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
+                 quiet: bool = True, log: Callable[[str], None] | None = None) -> dict:
+    """Run (or resume) the pipeline into ``out``; returns ``{"stages": {name: {"status",
+    "seconds"}}, "files", "metrics"}``."""
+    from engine_model.datasets import output_lock
+
+    out = Path(out)
+    check_data(None if data is None else Path(data))
+    check_out(out)
+    log = log or (lambda msg: None)
+    with output_lock(out):
+        check_out(out)
+        out.mkdir(parents=True, exist_ok=True)
+        if not (out / MARK).is_file():
+            write_json(out / MARK, {"format": FORMAT})
+        ctx = stages.Context(out=out, config=config, quiet=quiet, log=log)
+        return _run(ctx, None if data is None else Path(data))
+
+
+def _run(ctx: stages.Context, data: Path | None) -> dict:
+    cfg, out = ctx.config, ctx.out
+    timings: dict = {}
+    summaries: dict = {}
+
+    def step(name: str, conf: dict, inputs: dict, fn, *args) -> dict:
+        fp = fingerprint(name, conf, inputs)
+        t0 = time.perf_counter()
+        got = state.done(out, name, fp)
+        if got is not None:
+            timings[name] = {"status": "skipped", "seconds": time.perf_counter() - t0}
+            ctx.log(f"{name}: skipped (done for this configuration)")
+        else:
+            ctx.log(f"{name}: running")
+            folder = state.stage_dir(out, name, fp)
+            folder.mkdir(parents=True, exist_ok=True)
+            got = fn(ctx, folder, *args)
+            state.mark_done(out, name, fp, got)
+            got = state.done(out, name, fp)
+            timings[name] = {"status": "done", "seconds": time.perf_counter() - t0}
+            ctx.log(f"{name}: done in {timings[name]['seconds']:.1f} s")
+        summaries[name] = got
+        return {"fp": fp, **got}
+
+    data_cfg, seed = cfg["data"], cfg["pipeline"]["seed"]
+    if data is None and cfg["simulate"]["preset"]:
+        sim = step("simulate", {"simulate": cfg["simulate"], "units": data_cfg["units"]}, {},
+                   stages.simulate)
+        data, label = out / sim["data"], f"simulated {cfg['simulate']['preset']} fleet"
+    elif data is None:
+        data, label = stages.DEFAULT_DATA, "data_samples/tiny (the committed sample fleet)"
+    else:
+        label = str(data)
+    t0 = time.perf_counter()
+    dfp = data_fingerprint(data)
+    summaries["data"] = {"data": str(data), "label": label, "fingerprint": dfp}
+    base = {"data": dfp, "units": data_cfg["units"]}
+    timings["data"] = {"status": "checked", "seconds": time.perf_counter() - t0}
+    cal = step("calibrate", {"calibrate": cfg["calibrate"]}, base, stages.calibrate, data)
+    disc = None
+    if cfg["discover"]["enabled"]:
+        dconf = {"discover": {k: v for k, v in cfg["discover"].items() if k != "augment"},
+                 "calibrate": cfg["calibrate"], "seed": seed}
+        disc = step("discover", dconf, base, stages.discover, data)
+    augment = cfg["discover"]["augment"] and disc is not None
+    fin = {"calibrate": cal["fp"], **({"discover": disc["fp"]} if augment else {})}
+    feats = step("features", {"augment": augment, "data": data_cfg,
+                              "inputs": cfg["train"]["inputs"]}, fin, stages.features, data,
+                 summaries["calibrate"], summaries.get("discover") if augment else None)
+    tr = step("train", {"train": cfg["train"], "data": data_cfg, "seed": seed},
+              {"features": feats["fp"]}, stages.train, summaries["features"])
+    ev = step("evaluate", {"device": cfg["train"]["device"]},
+              {"train": tr["fp"], "features": feats["fp"]}, stages.evaluate,
+              summaries["features"], summaries["train"])
+    rin = {"calibrate": cal["fp"], "features": feats["fp"], "train": tr["fp"],
+           "evaluate": ev["fp"], "discover": None if disc is None else disc["fp"]}
+    step("report", {"config": cfg}, rin,
+         lambda c, folder: report.write(out, cfg, summaries, dict(timings)))
+    result = {"out": str(out), "data": label, "stages": timings,
+              "seconds": sum(v["seconds"] for v in timings.values()),
+              "files": summaries["report"]["files"],
+              "split": summaries["features"]["split"],
+              "rul": {k: {"rmse": v["metrics"]["samples"]["overall"]["rmse"],
+                          "score": v["metrics"]["samples"]["overall"]["score"],
+                          "rmse_last": v["metrics"]["last"]["overall"]["rmse"],
+                          "horizon": v["metrics"]["horizon"]["mean"]}
+                      for k, v in summaries["evaluate"].items()}}
+    write_json(out / "run.json", result)
+    return result

@@ -1,0 +1,307 @@
+"""The pipeline's stages, each a function ``(ctx, folder, ...) -> summary`` over the library.
+
+=============  ==============================================================================
+stage          what it does (and the library it calls)
+=============  ==============================================================================
+simulate       only with no DATA and ``[simulate] preset``: a fleet (``engine_model.fleet``);
+               otherwise DATA, or the committed ``data_samples/tiny`` fleet
+calibrate      theta_hat of every unit and the paper's feature table
+               (:func:`calibration.fleet.calibrate_fleet`; resumes unit by unit)
+discover       the model-discrepancy loop and its report (:mod:`calibration.discrepancy`)
+features       the table the networks learn from: the calibrated one, or with ``augment`` and
+               effects found, a recalibration with the found effects in the model; its
+               development / test / conformal split and the input columns of every input set
+               are resolved and checked here, before any training
+train          one model per input set (:func:`prognostics.training.fit`, saved with
+               :mod:`prognostics.checkpoint`; a finished model is kept across an interruption)
+evaluate       metrics per test unit and predictions (:meth:`RulModel.evaluate`)
+=============  ==============================================================================
+
+Every stage writes only inside its own folder (:mod:`.state`), through atomic writers.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from engine_model.validation import InputError
+
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "data_samples" / "tiny"
+
+
+@dataclass
+class Context:
+    """What every stage sees: the output folder, the configuration and the console."""
+
+    out: Path
+    config: dict
+    quiet: bool = False
+    log: Callable[[str], None] = field(default=lambda msg: None)
+    source: str = "data"
+
+    def rel(self, path: Path) -> str:
+        """``path`` relative to the output folder (markers stay valid if it is moved)."""
+        return Path(path).relative_to(self.out).as_posix()
+
+    def path(self, rel: str) -> Path:
+        return self.out / rel
+
+
+# ----------------------------------------------------------------------------- helpers
+def calibration_setup(config: dict):
+    from calibration import CalibrationSetup
+
+    c = config["calibrate"]
+    kw = {"drift_std_per_sqrt_h": c["drift"], "noise_scale": c["noise_scale"],
+          "prior_std": c["prior_std"]}
+    if c["params"] is not None:
+        kw["params"] = tuple(c["params"])
+    if c["sensors"] is not None:
+        kw["sensors"] = tuple(c["sensors"])
+    return CalibrationSetup(**kw)
+
+
+def split_units(present, metadata: dict, data_cfg: dict, source: str) -> dict:
+    """Development, test and conformal units: the config's, else the metadata's, else every
+    unit but the last for development and the last for test."""
+    present = sorted(int(u) for u in present)
+    meta = metadata or {}
+    test = data_cfg["test_units"]
+    how = "config"
+    if test is None:
+        test = [u for u in (meta.get("test_units") or []) if u in present]
+        how = "metadata" if test else "last unit"
+        if not test:
+            test = present[-1:]
+    dev = data_cfg["dev_units"]
+    if dev is None:
+        dev = [u for u in (meta.get("dev_units") or []) if u in present and u not in test]
+        if not dev:
+            dev = [u for u in present if u not in test]
+    for name, group in (("dev_units", dev), ("test_units", test),
+                        ("conformal_units", data_cfg["conformal_units"])):
+        missing = [u for u in group if u not in present]
+        if missing:
+            raise InputError(f"{source}: [data] {name}: unit(s) "
+                             f"{', '.join(map(str, missing))} not in the data")
+    both = sorted(set(dev) & set(test))
+    if both:
+        raise InputError(f"{source}: unit(s) {', '.join(map(str, both))} are both development "
+                         "and test units")
+    conf = list(data_cfg["conformal_units"])
+    if set(conf) - set(dev):
+        raise InputError(f"{source}: [data] conformal_units must be development units")
+    if not [u for u in dev if u not in conf]:
+        raise InputError(f"{source}: no development unit left to train on")
+    if not test:
+        raise InputError(f"{source}: no test unit")
+    return {"dev": sorted(dev), "test": sorted(test), "conformal": sorted(conf), "how": how}
+
+
+def _read(path, units=None):
+    from engine_model.datasets import read_dataset
+
+    return read_dataset(path, units=units)
+
+
+def _jsonable(o):
+    """Round trip through JSON: int keys become strings, numpy scalars Python numbers, NaN
+    None (what a resumed run reads back from the marker)."""
+    def clean(v):
+        if isinstance(v, dict):
+            return {str(k): clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, float) and not np.isfinite(v):
+            return None
+        return v
+
+    return json.loads(json.dumps(clean(o)))
+
+
+# ----------------------------------------------------------------------------- stages
+def simulate(ctx: Context, folder: Path) -> dict:
+    """A fleet of ``[simulate] preset`` into ``folder/fleet``."""
+    from engine_model.fleet import simulate as run
+
+    c = ctx.config["simulate"]
+    t0 = time.perf_counter()
+    path, rep = run(c["preset"], out=folder / "fleet", units=ctx.config["data"]["units"],
+                    rate_hz=c["rate_hz"], seed=c["seed"])
+    return {"data": ctx.rel(path), "preset": c["preset"], "seconds": time.perf_counter() - t0,
+            "rows": rep.total_rows, "dropped": int(sum(rep.dropped.values()))}
+
+
+def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
+    """theta_hat of every unit into ``folder/features`` (a rerun resumes unit by unit)."""
+    from calibration.fleet import calibrate_fleet
+
+    c = ctx.config["calibrate"]
+    setup = calibration_setup(ctx.config)
+    progress = None
+    if not ctx.quiet:
+        def progress(done, total):
+            ctx.log(f"  calibrated {done} of {total} unit(s)")
+    res = calibrate_fleet(data, c["method"], setup, {}, ctx.config["data"]["units"],
+                          c["jobs"], None, folder / "features", keep_results=False,
+                          progress=progress)
+    return _jsonable({"table": ctx.rel(folder / "features"), "method": c["method"],
+                      "params": list(res.setup.params), "sensors": list(res.sensors),
+                      "samples": res.samples, "seconds": res.seconds,
+                      "units": {u: {"samples": v["samples"],
+                                    "n_nonconverged": v["n_nonconverged"]}
+                                for u, v in sorted(res.units.items())},
+                      "resumed_units": res.skipped, "warnings": list(res.warnings)})
+
+
+def discover(ctx: Context, folder: Path, data: Path) -> dict:
+    """The discrepancy loop on the data; its report in ``folder/report``."""
+    from calibration import CalibrationSetup
+    from calibration.discrepancy import DiscoverOptions
+    from calibration.discrepancy import discover as run
+    from calibration.discrepancy.candidates import check_names
+    from calibration.discrepancy.report import report_dict, write_report
+    from engine_model.shared_model import default_model
+
+    c = ctx.config["discover"]
+    cal = calibration_setup(ctx.config)
+    setup = CalibrationSetup(params=cal.params, sensors=cal.sensors,
+                             noise_scale=cal.noise_scale, prior_std=cal.prior_std,
+                             drift_std_per_sqrt_h=cal.drift_std_per_sqrt_h)
+    opts = DiscoverOptions(method=c["method"],
+                           candidates=None if c["candidates"] is None else tuple(c["candidates"]),
+                           alpha=c["alpha"], max_effects=c["max_effects"], drift=c["drift"],
+                           n_draws=c["n_draws"], seed=ctx.config["pipeline"]["seed"])
+    check_names(opts.candidates)
+    df, _ = _read(data, ctx.config["data"]["units"])
+    frames = [g for _, g in df.groupby("unit", sort=True)]
+    say = None if ctx.quiet else (lambda msg: ctx.log(f"  {msg}"))
+    result = run(frames, setup, opts, base_model=default_model(), source=str(data),
+                 progress=say)
+    write_report(result, folder / "report")
+    r = report_dict(result)
+    return _jsonable({"report": ctx.rel(folder / "report"), "verdict": r["verdict"],
+                      "found": r["found"], "ambiguous": r["ambiguous"], "unknown": r["unknown"],
+                      "before": r["before"], "after": r["after"],
+                      "theta_error": r["theta_error"], "drift": r["drift"],
+                      "noise": {k: v for k, v in r["noise"].items() if k != "channels"},
+                      "rejected": r["rejected"],
+                      "candidates": len(r["diagnostics"]["candidates"]),
+                      "seconds": r["diagnostics"]["seconds"]})
+
+
+def _recalibrate(ctx: Context, folder: Path, data: Path, specs: list[str]) -> Path:
+    """Every unit calibrated again with the found effects in the engine model."""
+    from calibration import estimator_class
+    from calibration.fleet import setup_dict, unit_frames
+    from engine_model import EngineModel, datasets
+    from engine_model.effects import parse_effect_spec
+
+    c = ctx.config["calibrate"]
+    table = folder / "features"
+    meta = datasets.read_metadata(data)
+    setup = calibration_setup(ctx.config).for_dataset(meta)
+    model = EngineModel(effects=[parse_effect_spec(s) for s in specs])
+    est = estimator_class(c["method"])(model=model)
+    df, _ = datasets.read_dataset(data, units=ctx.config["data"]["units"], source_rows=True)
+    frames = unit_frames(df)
+    units = sorted(frames)
+    results = est.estimate_many([frames[u] for u in units], setup, str(data))
+    calib = {"method": c["method"], "options": {}, "setup": setup_dict(setup),
+             "effects": list(specs), "hyprog_version": datasets.hyprog_version()}
+    for u, r in zip(units, results, strict=True):
+        datasets.write_unit_part(r.to_features(frames[u]), table,
+                                 {**meta, "calibration": calib})
+    return table
+
+
+def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
+             discovered: dict | None) -> dict:
+    """The feature table to learn from, its split and the inputs of every input set."""
+    from engine_model.datasets import read_columns, read_dataset, read_metadata
+
+    from ..features import resolve_inputs
+
+    specs = []
+    if ctx.config["discover"]["augment"] and discovered and discovered["found"]:
+        specs = [f["spec"] for f in discovered["found"]]
+        ctx.log(f"  recalibrating with {', '.join(specs)}")
+        table = _recalibrate(ctx, folder, data, specs)
+    else:
+        table = ctx.path(calibrated["table"])
+    meta = read_metadata(table)
+    columns = read_columns(table)
+    keys = read_dataset(table, columns=[])[0]
+    split = split_units(keys["unit"].unique().tolist(), meta, ctx.config["data"], str(table))
+    inputs = {s: resolve_inputs(s, columns, str(table)) for s in ctx.config["train"]["inputs"]}
+    return _jsonable({"table": ctx.rel(table), "effects": specs, "split": split,
+                      "inputs": inputs, "rows": int(len(keys))})
+
+
+def train(ctx: Context, folder: Path, feats: dict) -> dict:
+    """One model per input set into ``folder/<inputs>`` (a finished one is kept)."""
+    from ..checkpoint import load_model, save_model
+    from ..outputs import write_json
+    from ..training import TrainConfig, fit
+
+    c, seed = ctx.config["train"], ctx.config["pipeline"]["seed"]
+    split = feats["split"]
+    table = ctx.path(feats["table"])
+    df, meta = _read(table)
+    out = {}
+    for inputs in c["inputs"]:
+        target, info = folder / inputs, folder / f"{inputs}.json"
+        if (target / "model.json").is_file() and info.is_file():
+            ctx.log(f"  {inputs}: kept from the interrupted run")
+            model, seconds = load_model(target), json.loads(info.read_text())["seconds"]
+        else:
+            ctx.log(f"  training {c['model'].upper()} on {inputs} ({len(feats['inputs'][inputs])}"
+                    " inputs)")
+            cfg = TrainConfig(model=c["model"], inputs=inputs, window=c["window"],
+                              stride=c["stride"], max_rul=c["max_rul"], seed=seed,
+                              epochs=c["epochs"], batch_size=c["batch_size"], lr=c["lr"],
+                              patience=c["patience"], units=tuple(split["dev"]),
+                              test_units=tuple(split["test"]),
+                              conformal_units=tuple(split["conformal"]), alpha=c["alpha"],
+                              device=c["device"])
+            t0 = time.perf_counter()
+            model = fit(df, meta, cfg, seeds=range(seed, seed + c["ensemble"]),
+                        quiet=ctx.quiet, source=str(table))
+            seconds = time.perf_counter() - t0
+            save_model(model, target)
+            write_json(info, {"seconds": seconds})
+        out[inputs] = {
+            "model": ctx.rel(target), "seconds": seconds, "window": model.window,
+            "parameters": model.members[0].parameters,
+            "members": [{"seed": m.seed, "best_epoch": m.best_epoch, "epochs_run": len(m.history),
+                         "history": [{k: h[k] for k in ("epoch", "train_loss", "val_loss")}
+                                     for h in m.history]} for m in model.members],
+            "conformal": None if model.conformal is None else model.conformal.to_dict()}
+    return _jsonable(out)
+
+
+def evaluate(ctx: Context, folder: Path, feats: dict, trained: dict) -> dict:
+    """Metrics of every model on the test units; predictions in ``folder``."""
+    from ..checkpoint import load_model
+    from ..outputs import write_table
+
+    table = ctx.path(feats["table"])
+    df, _ = _read(table)
+    test = feats["split"]["test"]
+    out = {}
+    for inputs, t in trained.items():
+        model = load_model(ctx.path(t["model"]))
+        metrics, pred = model.evaluate(df, test, ctx.config["train"]["device"],
+                                       source=str(table))
+        path = folder / f"{inputs}.predictions.parquet"
+        write_table(path, pred)
+        out[inputs] = {"metrics": metrics, "predictions": ctx.rel(path)}
+    return _jsonable(out)

@@ -1,0 +1,205 @@
+"""``hyprog pipeline`` through the CLI on two units of a freshly simulated tiny fleet (the
+simulate stage; the same preset as the committed sample) with a reduced configuration (one
+discrepancy candidate, a 3-epoch FNN): the report's files, resume (every
+stage skipped), a changed option rerunning only its stage and those after it, an interrupted
+run (SIGINT of a real process during training) leaving nothing half-written and resuming to
+the numbers of an uninterrupted run, and bad input (one line, exit 2, nothing written).
+"""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from typer.testing import CliRunner
+
+from cli.main import app
+
+CONFIG = """
+[simulate]
+preset = "tiny"
+[data]
+units = [3, 4]
+[discover]
+candidates = ["customer_bleed"]
+n_draws = 1000
+[train]
+model = "fnn"
+epochs = 3
+"""
+REPORT_FILES = ("report.md", "report.html", "metrics.json", "figures/theta.png",
+                "figures/rul_data-driven.png", "figures/rul_hybrid.png",
+                "figures/training.png", "figures/discrepancy.png")
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def hyprog(*args, **kw):
+    """Run the real console entry point in a subprocess (one torch thread)."""
+    return subprocess.run([sys.executable, "-m", "cli.main", *map(str, args)], env=ENV,
+                          capture_output=True, text=True, **kw)
+
+
+def stages_of(stdout: str) -> dict:
+    return {k: v["status"] for k, v in json.loads(stdout)["stages"].items()}
+
+
+@pytest.fixture(scope="module")
+def config(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cfg") / "pipeline.toml"
+    path.write_text(CONFIG)
+    return path
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory, config):
+    out = tmp_path_factory.mktemp("runs") / "a"
+    t0 = time.perf_counter()
+    r = hyprog("pipeline", "--config", config, "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    return out, json.loads(r.stdout), time.perf_counter() - t0
+
+
+def test_run_writes_the_report(first_run):
+    out, res, _ = first_run
+    for f in REPORT_FILES:
+        assert (out / f).is_file() and (out / f).stat().st_size > 0, f
+    assert set(res["stages"]) == {"simulate", "data", "calibrate", "discover", "features", "train",
+                                  "evaluate", "report"}
+    assert all(v["status"] in ("done", "checked") for v in res["stages"].values())
+    assert res["split"] == {"dev": [3], "test": [4], "conformal": [], "how": "metadata"}
+    md = (out / "report.md").read_text()
+    for section in ("## Fleet", "## Calibration", "## Model discrepancy",
+                    "## Remaining useful life", "## Timings", "## Configuration",
+                    "## Versions", "figures/rul_hybrid.png", "no conformal units"):
+        assert section in md, section
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 5 and 'src="figures' not in page
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["seed"] == 0 and m["config"]["train"]["epochs"] == 3
+    assert set(m["rul"]) == {"data-driven", "hybrid"}
+    assert set(m["rul"]["hybrid"]["samples"]["units"]) == {"4"}
+    acc = m["calibration"]["accuracy"]["overall"]  # the tiny fleet carries the true theta
+    assert set(acc) == {"HPT_eff_mod", "LPT_eff_mod", "LPT_flow_mod"}
+    assert all(0 < v["rmse"] < 0.01 for v in acc.values())
+    assert m["discovery"]["verdict"] in ("nothing missing", "explained", "partly explained",
+                                         "unknown effect", "ambiguous")
+    assert m["versions"]["hyprog"] and m["versions"]["torch"]
+    assert "seconds" not in json.dumps(m)  # timings live in report.md and run.json
+
+
+def test_rerun_skips_every_stage(first_run, config):
+    out, _, seconds = first_run
+    before = (out / "metrics.json").read_bytes()
+    t0 = time.perf_counter()
+    r = hyprog("pipeline", "--config", config, "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    st = stages_of(r.stdout)
+    assert {k: v for k, v in st.items() if k != "data"} == {
+        k: "skipped" for k in ("simulate", "calibrate", "discover", "features", "train", "evaluate",
+                               "report")}
+    assert time.perf_counter() - t0 < seconds / 2
+    assert (out / "metrics.json").read_bytes() == before
+
+
+def test_interrupted_run_resumes_to_the_same_numbers(first_run, config, tmp_path):
+    """SIGINT while the first network trains: exit 130, no temporary, lock or half-written
+    model left; the rerun redoes training only and its metrics.json equals the uninterrupted
+    run's byte for byte (same seed, same numbers)."""
+    out = tmp_path / "b"
+    p = subprocess.Popen([sys.executable, "-m", "cli.main", "pipeline", "--config",
+                          str(config), "--out", str(out)], env=ENV, stderr=subprocess.PIPE,
+                         stdout=subprocess.PIPE, text=True)
+    try:
+        for line in p.stderr:
+            if "training FNN on data-driven" in line:
+                time.sleep(0.5)
+                p.send_signal(signal.SIGINT)
+                break
+        p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130
+    left = [q for q in out.rglob("*") if ".tmp-" in q.name or ".old-" in q.name]
+    assert not left, left
+    assert not list(tmp_path.glob(".*hyprog-lock"))
+    assert not list(out.glob("stages/train-*/stage.json"))
+    assert not list(out.glob("stages/train-*/*/model.json"))  # no model was complete
+    assert not (out / "metrics.json").exists()
+    r = hyprog("pipeline", "--config", config, "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    st = stages_of(r.stdout)
+    assert st["simulate"] == st["calibrate"] == st["discover"] == st["features"] == "skipped"
+    assert st["train"] == st["evaluate"] == st["report"] == "done"
+    a = first_run[0]
+    assert (out / "metrics.json").read_bytes() == (a / "metrics.json").read_bytes()
+
+
+def test_changed_option_reruns_its_stage_and_those_after(first_run, config, tmp_path):
+    out = tmp_path / "c"
+    shutil.copytree(first_run[0], out)  # markers hold paths relative to the folder
+    changed = tmp_path / "changed.toml"
+    changed.write_text(config.read_text().replace("epochs = 3", "epochs = 2"))
+    r = hyprog("pipeline", "--config", changed, "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    st = stages_of(r.stdout)
+    assert st["simulate"] == st["calibrate"] == st["discover"] == st["features"] == "skipped"
+    assert st["train"] == st["evaluate"] == st["report"] == "done"
+    assert len(list(out.glob("stages/train-*"))) == 1  # the old configuration's is gone
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["training"]["hybrid"]["members"][0]["epochs_run"] == 2
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.fixture(scope="module")
+def runner():
+    return CliRunner()
+
+
+def assert_one_line_error(result, *fragments):
+    assert result.exit_code == 2, (result.exit_code, result.stdout, result.stderr)
+    err = result.stderr
+    assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err + result.stdout
+    for f in fragments:
+        assert f in err, (f, err)
+
+
+def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[train]\nepochz = 3\n")
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["pipeline", "--config", str(cfg), "--out", str(out)])
+    assert_one_line_error(r, "epochz", str(cfg), "[train]")
+    assert not out.exists()
+    cfg.write_text("[trian]\nepochs = 3\n")
+    assert_one_line_error(runner.invoke(app, ["pipeline", "--config", str(cfg), "--out",
+                                              str(out)]), "[trian]", str(cfg))
+    cfg.write_text("[train]\nepochs = \"many\"\n")
+    assert_one_line_error(runner.invoke(app, ["pipeline", "--config", str(cfg), "--out",
+                                              str(out)]), "epochs", str(cfg))
+    cfg.write_text("[train\n")
+    assert_one_line_error(runner.invoke(app, ["pipeline", "--config", str(cfg), "--out",
+                                              str(out)]), "not valid TOML", str(cfg))
+    assert not out.exists()
+
+
+def test_missing_data_and_config_and_foreign_out(runner, tmp_path):
+    out = tmp_path / "out"
+    missing = tmp_path / "no-such-fleet"
+    assert_one_line_error(runner.invoke(app, ["pipeline", str(missing), "--out", str(out)]),
+                          str(missing))
+    assert_one_line_error(runner.invoke(app, ["pipeline", "--config", str(tmp_path / "x.toml"),
+                                              "--out", str(out)]), "x.toml")
+    assert not out.exists()
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("keep me")
+    assert_one_line_error(runner.invoke(app, ["pipeline", "--out", str(foreign)]),
+                          str(foreign), "not a hyprog pipeline folder")
+    assert [p.name for p in foreign.iterdir()] == ["thesis.tex"]
+    assert not list(tmp_path.glob(".*hyprog-lock"))
