@@ -70,28 +70,31 @@ def _options(method, window, stride, mode, hessian):
 
 
 Params = Annotated[str | None, typer.Option(
-    "--params", help="Comma-separated health parameters to estimate, or 'all' [the paper's "
-    "HPT_eff_mod,LPT_eff_mod,LPT_flow_mod].")]
+    "--params", help="Comma-separated health parameters to estimate, or 'all' (default: the "
+    "paper's HPT_eff_mod,LPT_eff_mod,LPT_flow_mod).")]
 Sensors = Annotated[str | None, typer.Option(
-    "--sensors", help="Comma-separated measured channels to use [every x_s in the data].")]
+    "--sensors", help="Comma-separated measured channels to use (default: every x_s in the data).")]
 Drift = Annotated[float | None, typer.Option(
-    "--drift", help="Random-walk std of theta per sqrt(hour) [1e-3].")]
+    "--drift", help="Random-walk std of theta per sqrt(hour) (default: 1e-3).")]
 NoiseScale = Annotated[float | None, typer.Option(
-    "--noise-scale", help="Multiplier of the documented sensor noise in R [1].")]
-PriorStd = Annotated[float | None, typer.Option("--prior-std", help="Prior std of theta [0.02].")]
+    "--noise-scale", help="Multiplier of the documented sensor noise in R (default: 1).")]
+PriorStd = Annotated[float | None, typer.Option(
+    "--prior-std", help="Prior std of theta (default: 0.02).")]
 DriftPer = Annotated[str | None, typer.Option(
-    "--drift-per", help="cycle, time or auto [auto: cycle when the data have cycles].")]
-Units = Annotated[str | None, typer.Option("--units", help="Comma-separated units [all].")]
-Jobs = Annotated[int, typer.Option("--jobs", help="Worker processes [1].")]
+    "--drift-per", help="cycle, time or auto (default: auto: cycle when the data have cycles).")]
+Units = Annotated[str | None, typer.Option("--units", help="Comma-separated units (default: all).")]
+Jobs = Annotated[int, typer.Option("--jobs", help="Worker processes (default: 1).")]
 Scheduler = Annotated[str | None, typer.Option(
     "--scheduler", help="Dask scheduler address (tcp://host:port), or 'local' for a local "
     "Dask cluster of --jobs workers.")]
-Window = Annotated[int | None, typer.Option("--window", help="mhe: samples per window [60].")]
-Stride = Annotated[int | None, typer.Option("--stride", help="mhe: window step [= window].")]
+Window = Annotated[int | None, typer.Option(
+    "--window", help="mhe: samples per window (default: 60).")]
+Stride = Annotated[int | None, typer.Option(
+    "--stride", help="mhe: window step (default: the window).")]
 Mode = Annotated[str | None, typer.Option(
-    "--mode", help="mhe: constant or random_walk theta in a window [constant].")]
+    "--mode", help="mhe: constant or random_walk theta in a window (default: constant).")]
 Hessian = Annotated[str | None, typer.Option(
-    "--hessian", help="mhe / map_cycle: gauss-newton or exact [gauss-newton].")]
+    "--hessian", help="mhe / map_cycle: gauss-newton or exact (default: gauss-newton).")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON report only.")]
 
 
@@ -106,7 +109,10 @@ def run(
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
     stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
 ):
-    """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std)."""
+    """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std).
+
+    Example: hyprog calibrate data_samples/tiny --method ukf --drift 0.01 --out features
+    """
     import warnings
 
     from calibration import UnobservableWarning
@@ -170,7 +176,10 @@ def compare_cmd(
     stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
 ):
     """Each method against the truth: RMSE, bias, consistency, Cramér-Rao bound, whiteness,
-    speed."""
+    speed.
+
+    Example: hyprog calibrate compare fleet/ --methods ukf,ekf --jobs 2 --json
+    """
     import warnings
 
     from calibration import UnobservableWarning, estimator_class

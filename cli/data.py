@@ -19,7 +19,10 @@ def info(
     path: Annotated[Path, typer.Argument(help="Dataset: a parquet directory/file or an h5 file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ):
-    """Summarise a dataset: units, split, cycles, rows, end of life, onset t_s, effects."""
+    """Summarise a dataset: units, split, cycles, rows, end of life, onset t_s, effects.
+
+    Example: hyprog data info data_samples/tiny --json
+    """
     from engine_model import datasets
 
     with user_errors(path):
@@ -65,7 +68,10 @@ def import_cmapss(
 ):
     """Read a C-MAPSS (2008) subset into a hyprog parquet dataset (N-CMAPSS names, alt in ft,
     RUL per cycle; test unit u becomes unit 1000 + u). Written atomically; an existing --out
-    is replaced only when hyprog wrote it (or with --overwrite)."""
+    is replaced only when hyprog wrote it (or with --overwrite).
+
+    Example: hyprog data import-cmapss train_FD002.txt --out fd002
+    """
     from engine_model import datasets
 
     with user_errors():

@@ -32,27 +32,31 @@ def discover(
     method: Annotated[str, typer.Option("--method", help="Estimator of the null fit's warm "
                                         "start: mhe, ukf, ekf or map_cycle.")] = "mhe",
     candidates: Annotated[str | None, typer.Option(
-        "--candidates", help="Comma-separated effects to test [the library's steady and "
-        "sensor effects].")] = None,
+        "--candidates", help="Comma-separated effects to test (default: the library's steady and "
+        "sensor effects).")] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Family-wise false-discovery level "
                                          "per dataset.")] = 0.01,
     max_effects: Annotated[int, typer.Option("--max-effects", help="Most effects to add.")]
     = 3,
     params: Annotated[str | None, typer.Option(
-        "--params", help="Health parameters to estimate [HPT_eff_mod,LPT_eff_mod,"
-        "LPT_flow_mod].")] = None,
-    sensors: Annotated[str | None, typer.Option("--sensors", help="Channels to use [all "
-                                                "x_s in the data].")] = None,
+        "--params", help="Health parameters to estimate (default: HPT_eff_mod,LPT_eff_mod,"
+        "LPT_flow_mod).")] = None,
+    sensors: Annotated[str | None, typer.Option("--sensors", help="Channels to use (default: all "
+                                                "x_s in the data).")] = None,
     drift: Annotated[str | None, typer.Option(
-        "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle' [mle].")] = None,
+        "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle' (default: "
+        "mle).")] = None,
     units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
-                                              "[all].")] = None,
+                                              "(default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
 ):
     """Screen every candidate effect with score tests, confirm and add the significant
-    ones, and report what remains (verdict, effects with uncertainty, before/after)."""
+    ones, and report what remains (verdict, effects with uncertainty, before/after).
+
+    Example: hyprog discover data_samples/tiny --method ukf --out discover-report
+    """
     with user_errors(data):
         from calibration import CalibrationSetup
         from calibration.discrepancy import DiscoverOptions

@@ -14,7 +14,10 @@ def effects(
 ):
     """List the effect library: name, parameters, units, default, realistic and valid ranges,
     and the channels each effect moves. Switch one on in a simulation with
-    ``hyprog simulate --effect NAME[:param=value,...]``."""
+    'hyprog simulate --effect NAME[:param=value,...]'.
+
+    Example: hyprog effects --json
+    """
     from engine_model.effects import describe_effects
 
     lib = describe_effects()

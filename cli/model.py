@@ -135,7 +135,10 @@ def point(
         help="Health parameter delta, repeatable, e.g. --theta HPT_eff_mod=-0.02.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
 ):
-    """Every output of the engine model at one operating point."""
+    """Every output of the engine model at one operating point.
+
+    Example: hyprog model point --alt 35000 --mach 0.8 --tra 90 --theta HPT_eff_mod=-0.02
+    """
     with user_errors():
         _check_point(alt, mach, tra, t2, dt_isa)
         th = parse_theta(theta)
@@ -215,6 +218,8 @@ def envelope(
 
     alt 0-42,000 ft, Mach up to min(0.85, 350 kt CAS), TRA 20-100 %, ISA +-15 K,
     theta uniform in [-0.05, 0]. A report: exits 0 even when points fail.
+
+    Example: hyprog model envelope --n 2000 --seed 0
     """
     from engine_model.envelope import envelope_report
 
@@ -271,6 +276,8 @@ def reference(
 
     Each row runs at alt_kft (in thousands of ft), Mach, TRA and the table's T2; theta = 0.
     Ps30 and phi are not compared: in C-MAPSS they break their own definitions.
+
+    Example: hyprog model reference --json
     """
     from engine_model import reference as lib
 

@@ -33,7 +33,10 @@ def simulate(
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Simulate a fleet to failure and write it (atomically) with its metadata. An existing
-    --out is replaced only when hyprog wrote it (or with --overwrite)."""
+    --out is replaced only when hyprog wrote it (or with --overwrite).
+
+    Example: hyprog simulate --preset tiny --out fleet --seed 0
+    """
     from engine_model import datasets, fleet
     from engine_model.effects import parse_effect_spec
 
