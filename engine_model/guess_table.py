@@ -1,4 +1,5 @@
-"""Starting guesses of the steady-state unknowns: a table over (T2, PCNfR_dmd, Mach).
+"""Starting guesses of the steady-state unknowns: a table over (T2, PCNfR_dmd, Mach), in the
+controller's ground-idle and flight-idle modes.
 
 By similarity the corrected operating point of a turbofan depends mainly on the demanded
 corrected fan speed and the flight Mach number; T2 enters through the gas properties. The
@@ -6,7 +7,10 @@ table holds the unknowns at sea-level pressure on a grid of those three (T40 sto
 plus ``dx*/dtheta`` at every node, and a guess is the trilinear interpolation of the nodes
 plus their first-order health correction ``dx*/dtheta . theta`` (linear extrapolation in T2
 outside the nodes). Without Reynolds effects the corrected operating point does not depend on
-pressure, so sea level serves every altitude.
+pressure, so one altitude serves all - per controller mode: the minimum core speed differs on
+the ground and in flight (:mod:`schedule`), so the table is filled at sea level (ground mode
+below Mach 0.05-0.15) and at 10,000 ft (flight mode at every Mach), and a guess blends the two
+with the controller's own altitude weight.
 
 The table is filled by continuation when a model is first built and cached on disk next to
 the compiled code, keyed by a hash of the residual system (a changed model rebuilds it).
@@ -26,6 +30,7 @@ from .units import R_PER_K
 TABLE_PCT = np.linspace(24.0, 104.0, 41)  # from below ground idle (25 %) to maximum
 TABLE_MACH = np.linspace(0.0, 0.9, 10)
 TABLE_T2 = (540.0, 470.0, 400.0)  # degR, descending
+TABLE_ALT = (0.0, 10000.0)  # ft: the ground-idle and the flight-idle controller modes
 I_T40 = 4  # position of T40 among the unknowns (stored divided by T2)
 
 
@@ -34,17 +39,20 @@ class GuessTable:
     with the design T40 [K] used to scale T40 and the fan-speed schedule of the design."""
 
     def __init__(self, table: np.ndarray, dth: np.ndarray, t40_des_k: float,
-                 nf_demand_pct: Callable[[np.ndarray], np.ndarray]):
+                 nf_demand_pct: Callable[[np.ndarray], np.ndarray],
+                 flight_weight: Callable[[np.ndarray], np.ndarray]):
         self.table = table
         self.dth = dth
         self.t40_des_r = t40_des_k * R_PER_K
         self.nf_demand_pct = nf_demand_pct
+        self.flight_weight = flight_weight
 
     # ------------------------------------------------------------------ building
     @classmethod
     def build(cls, solve_from: Callable, continuation: Callable, dx_dtheta: Callable,
               tra_from_pct: Callable, n_theta: int, t40_des_k: float,
-              nf_demand_pct: Callable, x_design: np.ndarray) -> GuessTable:
+              nf_demand_pct: Callable, x_design: np.ndarray,
+              flight_weight: Callable) -> GuessTable:
         """Fill the table by continuation over (T2, PCNfR_dmd, Mach): from the design point at
         each T2, along Mach, then along the fan speed up and down from 100 %.
 
@@ -52,46 +60,48 @@ class GuessTable:
         ``continuation(w_target, x_start, theta) -> SolveResult``, ``dx_dtheta(x, w, theta)
         -> (N, n_x, n_theta)``, ``tra_from_pct(pct) -> TRA``."""
         n_t, n_p, n_m, n_x = len(TABLE_T2), len(TABLE_PCT), len(TABLE_MACH), len(x_design)
-        table = np.zeros((n_t, n_p, n_m, n_x))
+        n_a = len(TABLE_ALT)
+        table = np.zeros((n_a, n_t, n_p, n_m, n_x))
         i_des = int(np.argmin(np.abs(TABLE_PCT - 100.0)))
         order = list(range(i_des, n_p)) + list(range(i_des - 1, -1, -1))
         zeros = np.zeros(n_theta)
-        x_node = np.array(x_design, float)
-        for it2, T2 in enumerate(TABLE_T2):
-            r = continuation(np.array([0.0, 0.0, 100.0, T2]), x_node, zeros)
-            x_node = r.x[0]
-            x_prev_col = x_node
-            for j, mach in enumerate(TABLE_MACH):
-                x_prev = x_prev_col
-                for k, i in enumerate(order):
-                    if i == i_des - 1:
-                        x_prev = table[it2, i_des, j]
-                    w = np.array([[0.0, mach, tra_from_pct(TABLE_PCT[i]), T2]])
-                    r = solve_from(w, zeros[None, :], x_prev[None, :], max_iter=60)
-                    if not r.converged[0]:
-                        r = continuation(w[0], x_prev, zeros)
-                    table[it2, i, j] = r.x[0]
-                    x_prev = r.x[0]
-                    if k == 0:
-                        x_prev_col = r.x[0]
-        ww = np.array([[0.0, mach, tra_from_pct(pct), T2] for T2 in TABLE_T2 for pct in TABLE_PCT
-                       for mach in TABLE_MACH])
+        for ia, alt in enumerate(TABLE_ALT):
+            x_node = np.array(x_design, float)
+            for it2, T2 in enumerate(TABLE_T2):
+                r = continuation(np.array([alt, 0.0, 100.0, T2]), x_node, zeros)
+                x_node = r.x[0]
+                x_prev_col = x_node
+                for j, mach in enumerate(TABLE_MACH):
+                    x_prev = x_prev_col
+                    for k, i in enumerate(order):
+                        if i == i_des - 1:
+                            x_prev = table[ia, it2, i_des, j]
+                        w = np.array([[alt, mach, tra_from_pct(TABLE_PCT[i]), T2]])
+                        r = solve_from(w, zeros[None, :], x_prev[None, :], max_iter=60)
+                        if not r.converged[0]:
+                            r = continuation(w[0], x_prev, zeros)
+                        table[ia, it2, i, j] = r.x[0]
+                        x_prev = r.x[0]
+                        if k == 0:
+                            x_prev_col = r.x[0]
+        ww = np.array([[alt, mach, tra_from_pct(pct), T2] for alt in TABLE_ALT for T2 in TABLE_T2
+                       for pct in TABLE_PCT for mach in TABLE_MACH])
         dxdth = dx_dtheta(table.reshape(-1, n_x), ww, np.zeros((len(ww), n_theta)))
-        dxdth = dxdth.reshape(n_t, n_p, n_m, n_x, n_theta)
-        scale = t40_des_k * R_PER_K / np.asarray(TABLE_T2)[:, None, None]
-        dxdth[:, :, :, I_T40, :] *= scale[..., None]
-        table[:, :, :, I_T40] *= scale  # store T40/T2
-        return cls(table, dxdth, t40_des_k, nf_demand_pct)
+        dxdth = dxdth.reshape(n_a, n_t, n_p, n_m, n_x, n_theta)
+        scale = t40_des_k * R_PER_K / np.asarray(TABLE_T2)[None, :, None, None]
+        dxdth[..., I_T40, :] *= scale[..., None]
+        table[..., I_T40] *= scale  # store T40/T2
+        return cls(table, dxdth, t40_des_k, nf_demand_pct, flight_weight)
 
     @classmethod
     def load_or_build(cls, path: Path, build: Callable[[], GuessTable], t40_des_k: float,
-                      nf_demand_pct: Callable) -> GuessTable:
+                      nf_demand_pct: Callable, flight_weight: Callable) -> GuessTable:
         """The table cached at ``path`` (an ``.npz``), else ``build()`` and cache it (written
         to a temporary name and renamed, so concurrent processes never read half a file)."""
         if path.exists():
             try:
                 z = np.load(path)
-                return cls(z["table"], z["dth"], t40_des_k, nf_demand_pct)
+                return cls(z["table"], z["dth"], t40_des_k, nf_demand_pct, flight_weight)
             except (OSError, KeyError, ValueError):
                 pass
         tab = build()
@@ -102,7 +112,9 @@ class GuessTable:
 
     @staticmethod
     def cache_key(serialized_residual: str) -> str:
-        return hashlib.sha256(serialized_residual.encode()).hexdigest()[:16]
+        """Hash of the residual system and of the table's grid (either changes the table)."""
+        grid = repr((TABLE_ALT, TABLE_T2, TABLE_PCT.tolist(), TABLE_MACH.tolist()))
+        return hashlib.sha256((serialized_residual + grid).encode()).hexdigest()[:16]
 
     # ------------------------------------------------------------------ lookup
     def __call__(self, w: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
@@ -123,18 +135,20 @@ class GuessTable:
             i = np.clip(np.floor(c).astype(int), 0, nmax - 2)
             idx.append(i)
             frac.append(c - i)
+        wa = np.asarray(self.flight_weight(w[:, 0]), float)
         x = np.zeros((len(w), self.table.shape[-1]))
         th = None if theta is None else np.asarray(theta, float)
-        for corner in range(8):
-            bits = [(corner >> k) & 1 for k in range(3)]
-            wgt = np.ones(len(w))
-            ii = []
-            for b, i, f in zip(bits, idx, frac, strict=True):
-                wgt = wgt * (f if b else 1.0 - f)
-                ii.append(i + b)
-            x += wgt[:, None] * self.table[ii[0], ii[1], ii[2]]
-            if th is not None:
-                g = self.dth[ii[0], ii[1], ii[2]]
-                x += wgt[:, None] * np.einsum("nkt,nt->nk", g, th)
+        for mode, mode_wgt in ((0, 1.0 - wa), (1, wa)):
+            for corner in range(8):
+                bits = [(corner >> k) & 1 for k in range(3)]
+                wgt = mode_wgt * np.ones(len(w))
+                ii = []
+                for b, i, f in zip(bits, idx, frac, strict=True):
+                    wgt = wgt * (f if b else 1.0 - f)
+                    ii.append(i + b)
+                x += wgt[:, None] * self.table[mode, ii[0], ii[1], ii[2]]
+                if th is not None:
+                    g = self.dth[mode, ii[0], ii[1], ii[2]]
+                    x += wgt[:, None] * np.einsum("nkt,nt->nk", g, th)
         x[:, I_T40] *= w[:, 3] / self.t40_des_r
         return x

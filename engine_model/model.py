@@ -173,7 +173,8 @@ class EngineModel:
                                n_threads=self.n_threads)._guess
         key = GuessTable.cache_key(self._symbolic["residual"].serialize())
         return GuessTable.load_or_build(cache_dir() / f"table_{key}.npz", self._build_table,
-                                        self.design.T40_des, self.design.nf_demand_pct)
+                                        self.design.T40_des, self.design.nf_demand_pct,
+                                        self.design.spec.throttle.alt_flight_weight)
 
     def _build_table(self) -> GuessTable:
         return GuessTable.build(
@@ -182,7 +183,8 @@ class EngineModel:
             continuation=self._continuation, dx_dtheta=self._dx_dtheta,
             tra_from_pct=self.design.tra_from_pct, n_theta=N_THETA,
             t40_des_k=self.design.T40_des, nf_demand_pct=self.design.nf_demand_pct,
-            x_design=np.array(X_DESIGN, float))
+            x_design=np.array(X_DESIGN, float),
+            flight_weight=self.design.spec.throttle.alt_flight_weight)
 
     def _dx_dtheta(self, x, w, theta) -> np.ndarray:
         n = len(x)

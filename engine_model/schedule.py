@@ -25,16 +25,16 @@ Controls*, AIAA 2009, ch. 4 and 6; Walsh & Fletcher ch. 7.2 and 8):
 * minimum core speed: on the ground the engine idles on the fan schedule (ground idle); in
   flight the controller holds at least ``n2_min_flight`` physical core speed (flight idle),
   which keeps the burner lit, the bleed pressure up and the fan from windmilling at altitude.
-  The ground/flight switch (weight on wheels in a real FADEC) is a smooth step in Mach
-  between 0.05 and 0.15 (a function of Mach alone keeps the corrected operating point
-  independent of altitude, which the starting-guess table relies on).
+  The ground/flight switch (weight on wheels in a real FADEC) is a smooth step: in flight
+  above Mach 0.15 or 2,000 ft, on the ground below Mach 0.05 and 500 ft.
 
 The selection ``n = max(min(n_cmd, n_N2max, n_T48max), n_N2min)`` is written as a residual in
 the unknown fan speed (:meth:`ThrottleSchedule.controller_residual`): each limit contributes an
 error that rises with fan speed and is zero on its limit; ``min`` of speeds is ``max`` of errors
-and vice versa. Minima and maxima are smooth (log-sum-exp, ``LIMIT_SHARPNESS`` per unit of
-error): away from a limit the selected speed departs from the exact one by
-``exp(-k gap) / k``, i.e. < 1e-10 when 10 % apart.
+and vice versa. The minima and maxima are blended over a band of ``CONTROL_BAND`` (in error
+units, fan-speed fractions) with a C-infinity step (:func:`components.smooth_step`) and are
+exact outside it: away from every limit the controller holds exactly the schedule, so the fan
+speed does not depend on the health parameters at all (as in C-MAPSS).
 
 Every function works on floats, numpy arrays and CasADi symbols.
 """
@@ -46,10 +46,11 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from .components import smooth_step
 from .units import T_STD_K
 
 LIMIT_SHARPNESS = 5.0  # 1 / % of corrected speed, N1 red line on the schedule
-CONTROL_SHARPNESS = 250.0  # 1 / unit of the controller errors (fan-speed fractions)
+CONTROL_BAND = 0.002  # half-width of the limiter blending, in controller-error units
 
 
 def _is_casadi(x) -> bool:
@@ -74,9 +75,16 @@ def smooth_min(a, b, k=LIMIT_SHARPNESS):
     return np.minimum(a, b) - np.log1p(np.exp(-k * np.abs(d))) / k
 
 
-def smooth_max(a, b, k=LIMIT_SHARPNESS):
-    """C-infinity maximum, ``-smooth_min(-a, -b)``."""
-    return -smooth_min(-a, -b, k)
+def band_max(a, b, band=CONTROL_BAND):
+    """C-infinity maximum, exact outside ``|a - b| < band``: ``b + (a - b) step((a - b)/(2 band)
+    + 1/2)``."""
+    d = a - b
+    return b + d * smooth_step(d / (2.0 * band) + 0.5)
+
+
+def band_min(a, b, band=CONTROL_BAND):
+    """C-infinity minimum, exact outside ``|a - b| < band``."""
+    return -band_max(-a, -b, band)
 
 
 def _tanh(x):
@@ -94,6 +102,7 @@ class ThrottleSchedule:
     n2_min_ground: float = 0.50  # minimum physical core speed on the ground (below idle)
     n2_min_flight: float = 0.70  # minimum physical core speed in flight (flight idle)
     mach_flight: tuple = (0.05, 0.15)  # Mach band of the ground -> flight idle switch
+    alt_flight: tuple = (500.0, 2000.0)  # altitude band [ft] of the same switch
     # fan-speed fraction per unit of each limited quantity near its limit (makes the errors
     # comparable): the core speed moves about half as much as the fan speed, T48 by about
     # 0.7 of the design value per unit of fan speed
@@ -133,25 +142,30 @@ class ThrottleSchedule:
         n1_limit = self.n1_max_pct / _sqrt(T2_K / T_STD_K)
         return smooth_min(self.demand_pct(tra), n1_limit)
 
-    def n2_min(self, mach):
+    def alt_flight_weight(self, alt):
+        """0 below ``alt_flight[0]``, 1 above ``alt_flight[1]`` [ft], smooth between."""
+        lo, hi = self.alt_flight
+        return 0.5 * (1.0 + _tanh((alt - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
+
+    def n2_min(self, mach, alt):
         """Minimum physical core speed [fraction of design]: ground idle value on the ground,
-        flight idle value in flight (above ``mach_flight``), joined smoothly."""
+        flight idle value in flight (above ``mach_flight`` or ``alt_flight``), joined
+        smoothly."""
         lo, hi = self.mach_flight
-        s = 0.5 * (1.0 + _tanh((mach - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
+        s_m = 0.5 * (1.0 + _tanh((mach - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
+        s = 1.0 - (1.0 - s_m) * (1.0 - self.alt_flight_weight(alt))
         return self.n2_min_ground + (self.n2_min_flight - self.n2_min_ground) * s
 
-    def controller_residual(self, n_fan, n_cmd, n2, t48, mach):
+    def controller_residual(self, n_fan, n_cmd, n2, t48, mach, alt):
         """Residual of the controller's speed selection (module doc) in the fan speed
         ``n_fan`` [fraction of design corrected speed]; ``n_cmd`` the commanded corrected
         speed, ``n2`` the physical core speed and ``t48`` the T48, both relative to design;
-        ``mach`` selects ground or flight idle."""
-        k = CONTROL_SHARPNESS
+        ``mach`` and ``alt`` [ft] select ground or flight idle."""
         e_cmd = n_fan - n_cmd
         e_n2max = self.gain_n2 * (n2 - self.n2_max)
         e_t48 = self.gain_t48 * (t48 - self.t48_max)
-        e_n2min = self.gain_n2 * (n2 - self.n2_min(mach))
-        lowest_max = smooth_max(smooth_max(e_cmd, e_n2max, k), e_t48, k)
-        return smooth_min(lowest_max, e_n2min, k)
+        e_n2min = self.gain_n2 * (n2 - self.n2_min(mach, alt))
+        return band_min(band_max(band_max(e_cmd, e_n2max), e_t48), e_n2min)
 
     def tra_from_pct(self, pct):
         """The TRA [%] whose scheduled speed is ``pct`` (inverse of :meth:`demand_pct` above

@@ -179,7 +179,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
         (s.eta_mech * W49 * lpt["dh"] - P_lp) / d.P_lp_des,
         (W50 - core["W"]) / d.W50_des,
         s.throttle.controller_residual(n_fan, d.nf_command_pct(tra, T2) / 100.0,
-                                       Nc / s.Nc_rpm, T48 / des["T48"], mach),
+                                       Nc / s.Nc_rpm, T48 / des["T48"], mach, alt),
     )
 
     # --- derived outputs ---
