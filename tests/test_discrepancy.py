@@ -75,6 +75,20 @@ def test_effect_in_the_truth_is_named_estimated_and_removed(bleed_found):
         assert te["after"][q]["rmse"] < 2e-3
 
 
+@pytest.mark.slow
+def test_two_effects_at_once_are_both_found(bleed_fleet, model):
+    """The bleed and a +6 degR T48 offset (added to the readings; the noise is relative to the
+    reading, so adding it after the noise changes the noise by 0.004 degR)."""
+    df = bleed_fleet.copy()
+    df["T48"] += 6.0
+    d = discover([df], SETUP, DiscoverOptions(drift=0.01, **FAST), base_model=model)
+    assert [f["name"] for f in d.found] == ["customer_bleed", "sensor_bias_T48"]
+    assert d.verdict == "explained"
+    bleed, bias = d.found
+    assert bleed["ci95"]["f0"][0] <= BLEED <= bleed["ci95"]["f0"][1]
+    assert bias["ci95"]["offset"][0] <= 6.0 <= bias["ci95"]["offset"][1]
+
+
 def test_withheld_effect_is_an_unknown_effect_on_the_right_channels(bleed_fleet, model):
     names = tuple(n for n in STEADY_DEFAULT if n != "customer_bleed") + ("sensor_bias",
                                                                         "sensor_drift")

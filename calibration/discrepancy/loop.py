@@ -286,6 +286,26 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
         last_train = conf.train_fit if o.drift != "mle" else None
         null = update_drift(conf.fit, accepted)
     final = null
+    if found:
+        # every added effect's parameters from the final joint fit (an effect added later
+        # changes the estimate of an earlier one); the values at the time it was added kept
+        from .confirm import parameter_cov
+
+        cov = parameter_cov(problem, final)
+        free = list(final.free)
+        by_name = {c.name: c for c in cands}
+        for f in found:
+            c = by_name[f["name"]]
+            pos = [free.index(i) for i in c.index]
+            sd = np.sqrt(np.clip(np.diag(cov)[pos], 0, None))
+            ph = final.phi[c.index]
+            f["params_when_added"], f["std_when_added"] = f["params"], f["std"]
+            f["params"] = {q: float(v) for q, v in zip(c.params, ph, strict=True)}
+            f["std"] = {q: float(v) for q, v in zip(c.params, sd, strict=True)}
+            f["ci95"] = {q: [float(max(v - 1.96 * e, lo)), float(min(v + 1.96 * e, hi))]
+                         for q, v, e, lo, hi in zip(c.params, ph, sd, c.lower, c.upper,
+                                                    strict=True)}
+            f["spec"] = c.spec(ph)
     leftover = structure(final.lin.e, [(u, ok) for u, ok in zip(units, final.lin.ok,
                                                                 strict=True)],
                          sensors, o.alpha, problem.n_theta + len(final.free))

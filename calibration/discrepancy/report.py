@@ -51,6 +51,10 @@ def _fmt(v, nd=3):
     return str(v)
 
 
+def _p(p) -> str:
+    return "< 1e-300" if p == 0 else _fmt(p)
+
+
 def markdown(d) -> str:
     r = report_dict(d)
     dg = r["diagnostics"]
@@ -80,7 +84,7 @@ def markdown(d) -> str:
                            for q, v in f["params"].items())
             ho = f["held_out_sse"]
             lines.append(f"| {k} | {f['name']} | {ps} | {_fmt(f['likelihood_ratio'])} | "
-                         f"{_fmt(f['p_value'])} | {_fmt(f['explained_share'], 2)} | "
+                         f"{_p(f['p_value'])} | {_fmt(f['explained_share'], 2)} | "
                          f"{_fmt(ho['without'], 5)} -> {_fmt(ho['with'], 5)} |")
         lines.append("")
     for a in r["ambiguous"]:
@@ -138,7 +142,7 @@ def markdown(d) -> str:
                                                                 strict=True))
             rt = ", ".join(_fmt(v, 2) for v in c["ratio"])
             lines.append(f"| {c['name']}{' (absorbed by theta)' if c['absorbed'] else ''} | "
-                         f"{_fmt(c['statistic'])} | {c['df']} | {_fmt(c['p_value'])} | {rt} | "
+                         f"{_fmt(c['statistic'])} | {c['df']} | {_p(c['p_value'])} | {rt} | "
                          f"{md} |")
         lines.append("")
     lines.append("Figure: residuals.png (residual against its driving variable, before and "
