@@ -95,7 +95,7 @@ class HPOfftake(Effect):
     description = "Shaft power taken from the HP spool by the accessory gearbox."
     params = (Param("P_kw", "kW", 0.0, "HP shaft power extraction", 150.0, (0.0, 400.0),
                     valid=(0.0, 1000.0)),)
-    moves = ("Wf", "Nc", "T24", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
+    moves = ("Wf", "Nc", "T24", "T40", "T48", "T50", "P24", "P30", "P40")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
 
@@ -116,7 +116,7 @@ class Reynolds(Effect):
         Param("flow_ratio", "-", 0.5, "flow-capacity change / efficiency change", 0.5,
               (0.0, 1.0), valid=(0.0, 2.0)),
     )
-    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "P50")
+    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24")
     signature = {"SLS": {"Wf": 0, "T48": 0, "T50": 0, "Nc": 0},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1}}
 
@@ -144,7 +144,7 @@ class InletLoss(Effect):
         Param("dp_ram", "-", 0.0, "additional fractional loss per Mach^2", 0.005, (0.0, 0.02),
               valid=(0.0, 0.10)),
     )
-    moves = ("Wf", "T50", "P15", "P2", "P21", "P24", "Ps30", "P30", "P40", "P50")
+    moves = ("Wf", "T40", "T48", "T50", "P15", "P2", "P21", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"P2": -1, "P21": -1, "P30": -1, "P50": -1},
                  "CRZ": {"P2": -1, "P21": -1, "P30": -1, "P50": -1}}
 
