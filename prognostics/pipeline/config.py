@@ -21,6 +21,10 @@ table            key                  meaning [default]
                                       instead of using the committed ``data_samples/tiny`` [""]
                  ``rate_hz``          sample rate of the simulation [the preset's]
                  ``seed``             seed of the simulation [0]
+                 ``effects``          effects switched on in the simulated truth, as
+                                      ``hyprog simulate --effect`` takes them (e.g.
+                                      ``"customer_bleed:f0=0.02"``): data with an undeclared
+                                      effect for ``discover`` to find [none]
 ``calibrate``    ``method``           ``ukf``, ``ekf``, ``mhe`` or ``map_cycle`` [ukf]
                  ``params``           health parameters [the paper's three]
                  ``sensors``          measured channels [every x_s in the data]
@@ -73,7 +77,8 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "pipeline": {"seed": (_INT, 0)},
     "data": {"units": (_UNITS, None), "dev_units": (_UNITS, None),
              "test_units": (_UNITS, None), "conformal_units": (_UNITS, [])},
-    "simulate": {"preset": (_STR, ""), "rate_hz": (_FLOAT, None), "seed": (_INT, 0)},
+    "simulate": {"preset": (_STR, ""), "rate_hz": (_FLOAT, None), "seed": (_INT, 0),
+                 "effects": (_NAMES, [])},
     "calibrate": {"method": (_STR, "ukf"), "params": (_NAMES, None),
                   "sensors": (_NAMES, None), "drift": (_FLOAT, 0.01),
                   "noise_scale": (_FLOAT, 1.0), "prior_std": (_FLOAT, 0.02),

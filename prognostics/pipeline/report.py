@@ -96,22 +96,33 @@ def _fleet_blocks(fleet: dict, split: dict) -> list:
                        "flight classes"], rows)]
 
 
-def _calibration_blocks(cal: dict, acc: dict | None, theta_png: Path | None) -> list:
+def _accuracy_rows(acc: dict) -> list:
+    return [[q, _f(v["rmse"]), _f(v["bias"], "+.2e"), _f(v.get("coverage95"), ".3f")]
+            for q, v in acc["overall"].items()]
+
+
+def _calibration_blocks(cal: dict, acc: dict | None, theta_png: Path | None,
+                        before: dict | None = None, effects: list | None = None) -> list:
     out = [("h", 2, "Calibration"),
            ("p", f"{cal['method']} over {cal['samples']:,} samples, parameters "
                  f"{', '.join(cal['params'])}, sensors {', '.join(cal['sensors'])}.")]
+    head = ["parameter", "RMSE", "bias", "coverage (95 %)"]
     if acc is None:
         out.append(("p", "The data carry no true theta: accuracy against the truth is not "
                          "known."))
     else:
-        rows = [[q, _f(v["rmse"]), _f(v["bias"], "+.2e"), _f(v.get("coverage95"), ".3f")]
-                for q, v in acc["overall"].items()]
-        out += [("p", "theta_hat against the true theta over every sample; coverage: the "
-                      "fraction of samples whose truth lies in theta_hat ± 1.96 std "
-                      "(nominal 0.95)."),
-                ("table", ["parameter", "RMSE", "bias", "coverage (95 %)"], rows)]
+        out.append(("p", "theta_hat against the true theta over every sample; coverage: the "
+                         "fraction of samples whose truth lies in theta_hat ± 1.96 std "
+                         "(nominal 0.95)."))
+        if before is not None:
+            out += [("p", "With the base model (what discover started from):"),
+                    ("table", head, _accuracy_rows(before)),
+                    ("p", f"Recalibrated with {', '.join(effects or [])} (what the networks "
+                          "learn from):")]
+        out.append(("table", head, _accuracy_rows(acc)))
     if cal["warnings"]:
-        out.append(("p", "Warnings: " + "; ".join(cal["warnings"])))
+        out.append(("p", ("Warnings of the base-model calibration: " if before is not None
+                          else "Warnings: ") + "; ".join(cal["warnings"])))
     if theta_png is not None:
         out.append(("img", theta_png, "theta_hat per cycle (mean over each flight), truth "
                                       "dashed"))
@@ -204,6 +215,11 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     meta = read_metadata(s["data"]["data"])
     fleet = summarize(df, meta)
     acc = calibration_accuracy(df)
+    before = None
+    if feats["effects"]:  # augmented: the base model's calibration too
+        base, _ = read_dataset(out / s["calibrate"]["table"])
+        before = calibration_accuracy(base)
+        del base
     hat = [q + "_hat" for q in THETA_NAMES if q + "_hat" in df.columns]
     theta_png = None
     if hat:
@@ -235,7 +251,7 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     head = [("h", 1, "hyprog pipeline report"),
             ("p", f"Data: {s['data']['label']}. Seed {seed}. hyprog {vers['hyprog']}.")]
     blocks = (head + _fleet_blocks(fleet, split)
-              + _calibration_blocks(s["calibrate"], acc, theta_png)
+              + _calibration_blocks(s["calibrate"], acc, theta_png, before, feats["effects"])
               + _discovery_blocks(disc, feats["effects"], disc_png)
               + _rul_blocks(s["evaluate"], rul_figs, s["train"])
               + [("img", curves, "training and validation loss per epoch")]
@@ -255,6 +271,7 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
         "split": split,
         "calibration": {"method": s["calibrate"]["method"], "params": s["calibrate"]["params"],
                         "sensors": s["calibrate"]["sensors"], "accuracy": acc,
+                        "accuracy_base_model": before,
                         "warnings": s["calibrate"]["warnings"]},
         "discovery": None if disc is None else
         {k: v for k, v in disc.items() if k not in ("report", "seconds")},

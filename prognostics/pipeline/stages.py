@@ -130,12 +130,14 @@ def _jsonable(o):
 # ----------------------------------------------------------------------------- stages
 def simulate(ctx: Context, folder: Path) -> dict:
     """A fleet of ``[simulate] preset`` into ``folder/fleet``."""
+    from engine_model.effects import parse_effect_spec
     from engine_model.fleet import simulate as run
 
     c = ctx.config["simulate"]
+    effects = [parse_effect_spec(e) for e in c["effects"]]
     t0 = time.perf_counter()
     path, rep = run(c["preset"], out=folder / "fleet", units=ctx.config["data"]["units"],
-                    rate_hz=c["rate_hz"], seed=c["seed"])
+                    rate_hz=c["rate_hz"], seed=c["seed"], effects=effects)
     return {"data": ctx.rel(path), "preset": c["preset"], "seconds": time.perf_counter() - t0,
             "rows": rep.total_rows, "dropped": int(sum(rep.dropped.values()))}
 
