@@ -194,3 +194,19 @@ def test_flow_capacity_loss_consumes_stall_margin(model):
         new = ev[sm].to_numpy()[:len(pts)][where]
         worn = ev[sm].to_numpy()[len(pts):][where]
         assert np.all(worn < new), (name, new, worn)
+
+
+def test_health_signatures_keep_their_sign(model):
+    """Every theta at -2 % at SLS take-off, climb and cruise (engine_model.signatures): no
+    channel of T24 T30 T48 T50 P30 Nc Wf changes sign between the points where the change
+    exceeds the channel's noise sigma, except one whose physics is known: fan flow capacity
+    on T24 (+0.8 degR at SLS, +1.1 at climb, -1.0 at cruise). At cruise the booster-to-HPC
+    flow-capacity match sits just above the VBV schedule's closing point; the fan's flow loss
+    lowers it, the valves open (0.66 kg/s, 1.4 % of the booster flow), the booster unloads and
+    its exit temperature falls instead of rising."""
+    from engine_model.signatures import signature_table
+
+    table, sigma, flips = signature_table(model)
+    assert flips <= {("fan_flow_mod", "T24")}, flips
+    t24 = table["fan_flow_mod"]["T24"]
+    assert t24["SLS"] > 0 and t24["climb"] > 0 and t24["cruise"] < 0
