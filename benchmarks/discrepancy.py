@@ -132,7 +132,7 @@ def main(argv=None):
     opts = DiscoverOptions(method=a.method)
     runs = []
     print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'})")
-    for name in a.effects.split(","):
+    for name in filter(None, a.effects.split(",")):
         for size in map(float, a.sizes.split(",")):
             for seed in map(int, a.seeds.split(",")):
                 for unit in map(int, a.units.split(",")):

@@ -231,11 +231,12 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
             return cache["fit"]
 
         excess = _excess(problem, null)
+        excess_sd = float(np.sqrt(2.0 * sum(int(ok.sum()) for ok in null.lin.ok) * problem.m))
         chosen = None
         for i in sig[:MAX_CONFIRM_TRIES]:
             c = res.candidates[i]
             conf = confirm(problem, null, c, res.phi1[i], res.weights[i], res.p_crit,
-                           accepted, masks, null_train, excess)
+                           accepted, masks, null_train, excess, excess_sd)
             if conf.accepted:
                 chosen = (i, conf)
                 break
