@@ -5,8 +5,9 @@ The output folder ``OUT`` is absent, empty, or one this function wrote before (i
 ``pipeline.json``); anything else is refused, as is the current directory or a parent of it.
 One run at a time writes into it (:func:`engine_model.datasets.output_lock`). Every file is
 written atomically and every stage marks itself done last, so an interrupted run (Ctrl-C,
-SIGTERM, SIGKILL) leaves no half-written file, and the next run redoes only what was not
-finished and gives the numbers an uninterrupted run gives.
+SIGTERM) leaves no half-written file; a SIGKILL can leave hidden temporaries and the lock,
+which the next run removes (the lock's process is gone). The next run redoes only what was
+not finished and gives the numbers an uninterrupted run gives.
 
 Dependencies (what a stage's fingerprint holds besides its own table of the config):
 
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -63,6 +65,18 @@ def check_out(out: Path) -> None:
                          "choose another --out")
 
 
+def remove_temporaries(out: Path) -> int:
+    """Delete the hidden temporaries (``.<name>.tmp-*``) a killed run (SIGKILL) left in
+    ``out``; called under the lock, so no running writer owns any of them."""
+    stale = list(out.rglob(".*.tmp-*"))
+    for q in stale:
+        if q.is_dir() and not q.is_symlink():
+            shutil.rmtree(q, ignore_errors=True)
+        else:
+            q.unlink(missing_ok=True)
+    return len(stale)
+
+
 def check_data(data: Path | None) -> None:
     if data is not None and not Path(data).exists():
         raise InputError(f"{data}: no such file or directory")
@@ -81,6 +95,7 @@ def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
     with output_lock(out):
         check_out(out)
         out.mkdir(parents=True, exist_ok=True)
+        remove_temporaries(out)
         if not (out / MARK).is_file():
             write_json(out / MARK, {"format": FORMAT})
         ctx = stages.Context(out=out, config=config, quiet=quiet, log=log)
