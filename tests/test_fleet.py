@@ -75,8 +75,10 @@ def test_outputs_are_the_model_at_the_true_theta(tiny, model):
     df, _, _ = tiny
     rows = df.sample(50, random_state=0)
     y = model.evaluate(rows[list(W_NAMES)].to_numpy(), theta=rows[list(THETA_NAMES)].to_numpy())
+    # rtol 1e-8 of each channel, and atol 1e-6 for stall margins [%] that sit near zero at
+    # flight idle (the simulator's warm-started series and this fresh solve agree to ~1e-8)
     np.testing.assert_allclose(rows[list(XV_NAMES)].to_numpy(), y[list(XV_NAMES)].to_numpy(),
-                               rtol=1e-8)
+                               rtol=1e-8, atol=1e-6)
     # measured channels carry noise of the documented size
     rel = rows[list(XS_NAMES)].to_numpy() / y[list(XS_NAMES)].to_numpy() - 1.0
     sig = np.array([sensor_noise.SIGMA_REL[c] for c in XS_NAMES])
