@@ -67,6 +67,17 @@ def user_errors(source: object = None) -> Iterator[None]:
         fail(f"{where}cannot read as CSV: {e}")
 
 
+#: Signals received inside :func:`terminate_as_exit`. The SystemExit its handler raises can
+#: land inside an extension's call (e.g. CasADi converting a matrix), which may turn it into
+#: another error; the entry point then still exits ``128 + signum`` (:func:`exit_code_after`).
+TERMINATED: list[int] = []
+
+
+def exit_code_after(default: int) -> int:
+    """``128 + signum`` if a termination signal arrived, else ``default``."""
+    return 128 + TERMINATED[0] if TERMINATED else default
+
+
 @contextmanager
 def terminate_as_exit() -> Iterator[None]:
     """Inside the block SIGTERM ends the command like Ctrl-C does (exit 143 after the
@@ -80,6 +91,7 @@ def terminate_as_exit() -> Iterator[None]:
         return
 
     def _exit(signum, frame):
+        TERMINATED.append(signum)
         raise SystemExit(128 + signum)
 
     previous = signal.signal(signal.SIGTERM, _exit)

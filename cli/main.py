@@ -25,7 +25,7 @@ from typer.core import TyperGroup
 from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
 from cli import discover as discover_cmd
 from cli import pipeline as pipeline_cmd
-from cli.common import EXIT_USAGE, error_line, terminate_as_exit
+from cli.common import EXIT_USAGE, TERMINATED, error_line, exit_code_after, terminate_as_exit
 
 
 def _click_class(name: str) -> type:
@@ -63,9 +63,14 @@ class HyprogGroup(TyperGroup):
         except Abort:
             typer.echo("error: aborted", err=True)
             rv = 130
+        except Exception:
+            if not TERMINATED:
+                raise
+            rv = None  # SIGTERM's exit, turned into another error by an extension's call
+        rv = exit_code_after(rv if isinstance(rv, int) else 0)
         if not standalone_mode:
             return rv
-        sys.exit(rv if isinstance(rv, int) else 0)
+        sys.exit(rv)
 
 
 app = typer.Typer(
