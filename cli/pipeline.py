@@ -24,7 +24,8 @@ def pipeline(
     augment: Annotated[bool, typer.Option(
         "--augment", help="Add the effects that discover finds to the model and recalibrate "
         "before training.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines and bars (they "
+                                        "are drawn on a terminal only).")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
 ):
     """Calibrate the fleet, look for model discrepancy, train the data-driven and hybrid
@@ -43,7 +44,7 @@ def pipeline(
         if augment:
             cfg["discover"]["augment"] = True
         err = console(stderr=True)
-        quiet = quiet or as_json
+        quiet = quiet or as_json or not err.is_terminal  # progress on a terminal only
         log = (lambda msg: None) if quiet else (lambda msg: err.print(msg, soft_wrap=True))
         res = run_pipeline(out, cfg, data, quiet=quiet, log=log)
     if as_json:

@@ -105,25 +105,39 @@ def test_rerun_skips_every_stage(first_run, config):
     assert (out / "metrics.json").read_bytes() == before
 
 
-def test_interrupted_run_resumes_to_the_same_numbers(first_run, config, tmp_path):
-    """SIGINT while the first network trains: exit 130, no temporary, lock or half-written
-    model left; the rerun redoes training only and its metrics.json equals the uninterrupted
-    run's byte for byte (same seed, same numbers)."""
-    out = tmp_path / "b"
+def _interrupt_during_training(config, out):
+    """Start a real run, SIGINT it one second into the train stage; (returncode, stderr)."""
     p = subprocess.Popen([sys.executable, "-m", "cli.main", "pipeline", "--config",
                           str(config), "--out", str(out)], env=ENV, stderr=subprocess.PIPE,
                          stdout=subprocess.PIPE, text=True)
     try:
-        for line in p.stderr:
-            if "training FNN on data-driven" in line:
-                time.sleep(0.5)
-                p.send_signal(signal.SIGINT)
-                break
-        p.communicate(timeout=120)
+        deadline = time.monotonic() + 300
+        while not list(out.glob("stages/train-*")) and p.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)  # inside the first network's epochs (about 1-2 s each)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=120)
     finally:
         if p.poll() is None:
             p.kill()
-    assert p.returncode == 130
+    return p.returncode, err
+
+
+def test_interrupted_run_resumes_to_the_same_numbers(first_run, config, tmp_path):
+    """SIGINT while the first network trains: exit 130, no temporary, lock or half-written
+    model left; the rerun redoes training only and its metrics.json equals the uninterrupted
+    run's byte for byte (same seed, same numbers).
+
+    A SIGINT that lands while Python runs a finalizer (a weakref callback) is printed as
+    "Exception ignored" and lost, so the run completes: such an attempt proves nothing and
+    is repeated in a fresh folder (at most three attempts)."""
+    for attempt in range(3):
+        out = tmp_path / f"b{attempt}"
+        code, err = _interrupt_during_training(config, out)
+        if not (code == 0 and "Exception ignored" in err):
+            break
+    assert code == 130, err
     left = [q for q in out.rglob("*") if ".tmp-" in q.name or ".old-" in q.name]
     assert not left, left
     assert not list(tmp_path.glob(".*hyprog-lock"))
@@ -203,3 +217,19 @@ def test_missing_data_and_config_and_foreign_out(runner, tmp_path):
                           str(foreign), "not a hyprog pipeline folder")
     assert [p.name for p in foreign.iterdir()] == ["thesis.tex"]
     assert not list(tmp_path.glob(".*hyprog-lock"))
+
+
+def test_refused_data_leaves_nothing_behind(runner, tmp_path):
+    """P30 in kPa (not psia): the calibrate stage refuses it before writing; the run exits 2
+    with one line and the output folder it created is gone."""
+    from engine_model.datasets import read_dataset, read_metadata, write_parquet
+    from prognostics.pipeline.stages import DEFAULT_DATA
+
+    df, _ = read_dataset(DEFAULT_DATA, units=[4])
+    data = tmp_path / "kpa"
+    write_parquet(df.assign(P30=df["P30"] * 6.894757), data, read_metadata(DEFAULT_DATA))
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["pipeline", str(data), "--out", str(out)])
+    assert_one_line_error(r, str(data), "unit 4")
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kpa"]

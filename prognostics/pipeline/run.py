@@ -94,12 +94,31 @@ def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
     log = log or (lambda msg: None)
     with output_lock(out):
         check_out(out)
+        created = not out.exists() or not any(out.iterdir())
         out.mkdir(parents=True, exist_ok=True)
         remove_temporaries(out)
         if not (out / MARK).is_file():
             write_json(out / MARK, {"format": FORMAT})
         ctx = stages.Context(out=out, config=config, quiet=quiet, log=log)
-        return _run(ctx, None if data is None else Path(data))
+        try:
+            return _run(ctx, None if data is None else Path(data))
+        except InputError:
+            tidy_after_refusal(out, created)
+            raise
+
+
+def tidy_after_refusal(out: Path, created: bool) -> None:
+    """After bad input: remove the stage folders left empty (a stage refuses before it
+    writes) and, when this run created ``out`` and nothing in it is done, ``out`` itself, so
+    that a refused run leaves nothing behind."""
+    for folder in (out / state.STAGES_DIR).glob("*"):
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+    stages_dir = out / state.STAGES_DIR
+    if stages_dir.is_dir() and not any(stages_dir.iterdir()):
+        stages_dir.rmdir()
+    if created and [p.name for p in out.iterdir()] == [MARK]:
+        shutil.rmtree(out)
 
 
 def _run(ctx: stages.Context, data: Path | None) -> dict:
