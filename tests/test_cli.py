@@ -4,19 +4,18 @@ The engine model is built once for the module (the process-wide one of
 :func:`cli.common.get_model`).
 """
 
-import inspect
 import json
 import subprocess
 import sys
 
 import pytest
-from typer.testing import CliRunner
 
 from cli.common import get_model
 from cli.main import app
 from engine_model.reference import default_reference_path
 from engine_model.sampling import envelope_points
 from engine_model.units import T_STD_K, T_STD_R, k_to_r
+from tests.cli_checks import assert_user_error, cli_runner
 
 SLS_T30_R = 1586.4  # C-MAPSS FD002, SLS ISA TRA 100 (the design point)
 SLS_CHANNELS = ("T24", "T30", "T50", "P15", "P30", "Nf", "Nc", "BPR", "W31", "W32", "epr")
@@ -25,25 +24,11 @@ SLS_CHANNELS = ("T24", "T30", "T50", "P15", "P30", "Nf", "Nc", "BPR", "W31", "W3
 @pytest.fixture(scope="module")
 def runner():
     get_model()  # build (compile or load) the engine model once for the module
-    if "mix_stderr" in inspect.signature(CliRunner.__init__).parameters:
-        return CliRunner(mix_stderr=False)  # click < 8.2: keep stderr apart
-    return CliRunner()  # click >= 8.2: stdout and stderr are always apart
+    return cli_runner()
 
 
 def run(runner, *args):
     return runner.invoke(app, list(args))
-
-
-def assert_user_error(result, *fragments, code=2):
-    """Non-zero exit, one 'error: ...' line on stderr naming the culprit, no traceback."""
-    assert result.exit_code == code, (result.exit_code, result.stdout, result.stderr)
-    assert isinstance(result.exception, SystemExit), repr(result.exception)
-    err = result.stderr
-    assert err.startswith("error: "), err
-    assert len(err.strip().splitlines()) == 1, err
-    assert "Traceback" not in err + result.stdout
-    for f in fragments:
-        assert f in err, (f, err)
 
 
 def test_help_does_not_import_the_engine_model():

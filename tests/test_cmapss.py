@@ -5,13 +5,11 @@ The files are written by the tests in the published layout: 26 space-separated n
 two trailing spaces (as in the NASA files), settings as in FD002 (altitude in kft).
 """
 
-import inspect
 import json
 
 import numpy as np
 import pytest
 from pandas.testing import assert_frame_equal
-from typer.testing import CliRunner
 
 from cli.main import app
 from engine_model.datasets import (
@@ -23,6 +21,7 @@ from engine_model.datasets import (
 )
 from engine_model.datasets.cmapss import NOT_PHYSICAL, offset_for_test_units
 from engine_model.validation import InputError
+from tests.cli_checks import assert_user_error, cli_runner
 
 # an FD002 line: settings (alt kft, Mach, TRA) and the 21 sensors, T2 first, W32 last
 SETTINGS = (34.9983, 0.84, 100.0)
@@ -56,9 +55,7 @@ def files(tmp_path):
 
 @pytest.fixture(scope="module")
 def runner():
-    if "mix_stderr" in inspect.signature(CliRunner.__init__).parameters:
-        return CliRunner(mix_stderr=False)
-    return CliRunner()
+    return cli_runner()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -189,14 +186,6 @@ def test_import_writes_a_parquet_dataset_that_reads_back(runner, files, tmp_path
     info = json.loads(runner.invoke(app, ["data", "info", str(out), "--json"]).stdout)
     assert info["source_format"] == "cmapss-text"
     assert [u["eol"] for u in info["units"]] == [4, 3, 2, 3]
-
-
-def assert_user_error(result, *fragments):
-    assert result.exit_code == 2, (result.exit_code, result.stdout, result.stderr)
-    err = result.stderr
-    assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
-    for f in fragments:
-        assert f in err, (f, err)
 
 
 def test_import_errors_are_one_line_and_leave_nothing(runner, files, tmp_path):

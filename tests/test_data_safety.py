@@ -13,7 +13,6 @@ that calibrate (a second or two each).
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 import signal
@@ -26,13 +25,14 @@ import h5py
 import numpy as np
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
 
 from cli.main import app
 from engine_model import datasets
 from engine_model.datasets.atomic import host_name
 from engine_model.datasets.lock import lock_path
 from engine_model.units import FT_TO_M, PSIA_TO_PA, R_PER_K
+from tests.cli_checks import assert_user_error as assert_error
+from tests.cli_checks import cli_runner
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "data_samples" / "tiny"
@@ -40,23 +40,11 @@ TINY = REPO / "data_samples" / "tiny"
 
 @pytest.fixture(scope="module")
 def runner(model):  # the compiled model is built (or loaded) once for the module
-    if "mix_stderr" in inspect.signature(CliRunner.__init__).parameters:
-        return CliRunner(mix_stderr=False)
-    return CliRunner()
+    return cli_runner()
 
 
 def run(runner, *args):
     return runner.invoke(app, [str(a) for a in args])
-
-
-def assert_error(r, *fragments, code=2):
-    """Exit ``code``, exactly one ``error: ...`` line on stderr naming the fragments."""
-    assert r.exit_code == code, (r.exit_code, r.stdout, r.stderr)
-    err = r.stderr
-    assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
-    assert "Traceback" not in err + r.stdout and "╭" not in err, err
-    for f in fragments:
-        assert f in err, (f, err)
 
 
 def tree(root: Path) -> dict:
