@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from engine_model.channels import W_NAMES
+from engine_model.datasets.schema import first_non_number
 from engine_model.sensor_noise import sigma_abs
 from engine_model.units import C_TO_K, R_PER_K
 from engine_model.validation import ENVELOPE, InputError, check_w
@@ -67,13 +68,10 @@ def _numbers(df: pd.DataFrame, columns, where: str) -> np.ndarray:
     except (TypeError, ValueError):
         pass
     for c in columns:
-        col = df[c]
-        values = pd.to_numeric(col, errors="coerce")
-        bad = values.isna().to_numpy() & col.notna().to_numpy()
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise InputError(f"{where}row {df.index[i]}, column {c}: {col.iloc[i]!r} is not a"
-                             " number")
+        i = first_non_number(df[c])
+        if i is not None:
+            raise InputError(f"{where}row {df.index[i]}, column {c}: {df[c].iloc[i]!r} is not"
+                             " a number")
     return df[list(columns)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
 
 

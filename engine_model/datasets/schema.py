@@ -85,6 +85,12 @@ def row_label(df: pd.DataFrame, i: int):
     return label.item() if hasattr(label, "item") else label
 
 
+def first_non_number(col: pd.Series) -> int | None:
+    """Position of the first value of ``col`` that is neither missing nor a number, or None."""
+    bad = pd.to_numeric(col, errors="coerce").isna().to_numpy() & col.notna().to_numpy()
+    return int(np.flatnonzero(bad)[0]) if bad.any() else None
+
+
 def as_numeric(df: pd.DataFrame, source: str) -> pd.DataFrame:
     """The channel columns (:data:`NUMERIC_COLUMNS`) stored as text converted to float64; a
     value that is not a number is an InputError naming its column, row and value."""
@@ -93,13 +99,12 @@ def as_numeric(df: pd.DataFrame, source: str) -> pd.DataFrame:
         if name not in df.columns or pd.api.types.is_numeric_dtype(df[name].dtype):
             continue
         col = df[name]
-        values = pd.to_numeric(col, errors="coerce")
-        bad = values.isna().to_numpy() & col.notna().to_numpy()
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
+        i = first_non_number(col)
+        if i is not None:
             raise InputError(f"{source}: row {row_label(df, i)}, column {name}: "
                              f"{col.iloc[i]!r} is not a number")
-        out[name] = values.to_numpy(dtype=np.float64, na_value=np.nan)
+        out[name] = pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64,
+                                                                   na_value=np.nan)
     return df.assign(**out) if out else df
 
 
