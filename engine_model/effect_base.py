@@ -35,7 +35,10 @@ hook (value, unit)                     context keywords
 ``<theta name>`` (fraction), e.g.      ``T_in`` [K], ``P_in`` [Pa]: the component's inlet total
 ``HPT_eff_mod``, ``fan_flow_mod``      state at this operating point; ``T_in_des``, ``P_in_des``:
                                        the same at the design point; ``eta_des``: the design
-                                       efficiency (floats). Fan: T2 and the free-stream Pt0
+                                       efficiency (floats); ``n_corr``: the component's
+                                       corrected speed relative to the SLS design point
+                                       (compressors: their map's speed coordinate).
+                                       Fan: T2 and the free-stream Pt0
                                        (the fan's hooks precede the intake loss); LPC: 21;
                                        HPC: 25; HPT: 41 / P40; LPT: 49 / P45.
 ``P2`` (Pa, fan face after the         ``Pt0`` [Pa] (free-stream total pressure)

@@ -35,6 +35,8 @@ the effects; with no effects the hooks return their input unchanged and ignore t
 expression graph is the same as without the context.
 """
 
+import math
+
 import casadi as ca
 
 from . import atmosphere, components, gas
@@ -51,11 +53,13 @@ def _no_hook(name, value, **station):
     return value
 
 
-def _inlet(T_in, P_in, T_in_des, P_in_des, eta_des):
+def _inlet(T_in, P_in, T_in_des, P_in_des, eta_des, n_corr):
     """Station context of a component's modifier hooks: its inlet total state here and at
-    the design point, and its design efficiency (used e.g. by Reynolds-number effects)."""
+    the design point, its design efficiency (used e.g. by Reynolds-number effects) and its
+    corrected speed relative to the design point, ``n_corr = (N/sqrt(T_in)) / (N/sqrt(T_in))_des``
+    (the speed coordinate of its map; used e.g. by map-adaptation effects)."""
     return dict(T_in=T_in, P_in=P_in, T_in_des=float(T_in_des), P_in_des=float(P_in_des),
-                eta_des=float(eta_des))
+                eta_des=float(eta_des), n_corr=n_corr)
 
 
 def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
@@ -84,7 +88,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
 
     # --- fan (its modifier hooks see the free-stream Pt0: they precede the intake loss) ---
     des = d.point  # design-point stations (SI)
-    at2 = _inlet(T2, Pt0, des["T2"], des["P2"] / (1.0 - d.dp_inlet), d.fan.eta_des)
+    at2 = _inlet(T2, Pt0, des["T2"], des["P2"] / (1.0 - d.dp_inlet), d.fan.eta_des, n_fan)
     fan_eff = hook("fan_eff_mod", fan_eff, **at2)
     fan_flow = hook("fan_flow_mod", fan_flow, **at2)
     wc2 = d.fan.flow(n_fan, beta_fan, fan_flow)
@@ -94,7 +98,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
 
     # --- LPC (booster) on the core stream ---
     n_lpc = Nf / ca.sqrt(T21 / T_STD_K) / d.nrl_des
-    at21 = _inlet(T21, P21, des["T21"], des["P21"], d.lpc.eta_des)
+    at21 = _inlet(T21, P21, des["T21"], des["P21"], d.lpc.eta_des, n_lpc)
     lpc = components.compressor(d.lpc, T21, P21, n_lpc, beta_lpc,
                                 hook("LPC_eff_mod", lpc_eff, **at21),
                                 hook("LPC_flow_mod", lpc_flow, **at21))
@@ -121,7 +125,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     T25 = T24
     NRc = n_hpc * d.nrc_des  # C-MAPSS corrects core speed on T24
     Nc = NRc * ca.sqrt(T24 / T_STD_K)
-    at25 = _inlet(T25, P25, des["T24"], des["P25"], d.hpc.eta_des)
+    at25 = _inlet(T25, P25, des["T24"], des["P25"], d.hpc.eta_des, n_hpc)
     hpc = components.compressor(d.hpc, T25, P25, n_hpc, beta_hpc,
                                 hook("HPC_eff_mod", hpc_eff, **at25),
                                 hook("HPC_flow_mod", hpc_flow, **at25))
@@ -150,7 +154,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     m41 = components.mixer(W4, T40, far4, W31, T30, 0.0)
     W41, T41, far41 = m41["W"], m41["T"], m41["far"]
     pr_hpt = prh_rel * d.pr_hpt_des
-    at41 = _inlet(T41, P40, des["T41"], des["P40"], d.hpt.eta_des)
+    n_hpt = n_hpc * ca.sqrt(T24 / T41) / math.sqrt(des["T24"] / des["T41"])
+    at41 = _inlet(T41, P40, des["T41"], des["P40"], d.hpt.eta_des, n_hpt)
     hpt = components.turbine(d.hpt, T41, P40, far41, pr_hpt, Nc,
                              hook("HPT_eff_mod", hpt_eff, **at41),
                              hook("HPT_flow_mod", hpt_flow, **at41))
@@ -161,7 +166,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     m49 = components.mixer(W48, T48, far41, W32, T_int, 0.0)
     W49, T49, far49 = m49["W"], m49["T"], m49["far"]
     pr_lpt = prl_rel * d.pr_lpt_des
-    at49 = _inlet(T49, P45, des["T49"], des["P45"], d.lpt.eta_des)
+    n_lpt = n_fan * ca.sqrt(T2 / T49) / math.sqrt(des["T2"] / des["T49"])
+    at49 = _inlet(T49, P45, des["T49"], des["P45"], d.lpt.eta_des, n_lpt)
     lpt = components.turbine(d.lpt, T49, P45, far49, pr_lpt, Nf,
                              hook("LPT_eff_mod", lpt_eff, **at49),
                              hook("LPT_flow_mod", lpt_flow, **at49))
