@@ -57,13 +57,11 @@ def _bound_kind(method: str, options: dict) -> str:
 
 
 def _window_labels(n: int, diag: dict) -> np.ndarray:
-    """Per-sample label of the window whose estimate a sample reports (mhe diagnostics)."""
-    starts = list(diag.get("window_starts") or [0])
-    stride = diag.get("stride") or diag.get("window") or n
+    """Per-sample label of the window whose estimate a sample reports (mhe diagnostics:
+    ``window_starts`` and ``window_ends``, the end of the samples each window reports)."""
     labels = np.zeros(n, int)
-    for i, a in enumerate(starts):
-        end = n if i == len(starts) - 1 else min(a + stride, n)
-        labels[a:end] = i
+    for i, (a, b) in enumerate(zip(diag["window_starts"], diag["window_ends"], strict=True)):
+        labels[a:b] = i
     return labels
 
 
