@@ -10,6 +10,7 @@ import functools
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.optimize import brentq
 
 from engine_model import (
     OUTPUT_NAMES,
@@ -24,7 +25,7 @@ from engine_model import (
 )
 from engine_model.effects import Effect, Param
 
-from .conftest import reference_csv, w_rows
+from .conftest import isa_t2_R, reference_csv, w_rows
 
 OUT = list(OUTPUT_NAMES)
 N_TH = len(THETA_NAMES)
@@ -628,15 +629,34 @@ def test_thrust_and_tsfc_plausible(model):
     assert np.all(np.diff(ev.T48) > 0) and np.all(np.diff(ev.Nc) > 0)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "open (issue 12): with the new maps the fan runs on the choke side of its 100 % line at "
-    "cruise (choked bypass nozzle) and the thrust lapse at 35 kft M0.8 TRA 100 is 0.144; "
-    "class engines give 0.18-0.22 at max climb, which is above 100 % corrected fan speed, "
-    "while C-MAPSS's convention holds TRA 100 at 100 %"))
-def test_thrust_lapse_to_cruise(model):
-    sls = model.point(0.0, 0.0, 100.0)
-    cruise = model.point(35000.0, 0.8, 100.0)
-    assert 0.15 <= cruise.Fn / sls.Fn <= 0.30, cruise.Fn / sls.Fn
+def test_thrust_lapse_at_max_climb(model):
+    """Thrust lapse from SLS take-off to max climb at 35 kft Mach 0.8.
+
+    Mattingly, Heiser & Pratt (*Aircraft Engine Design*, 2nd ed., AIAA 2002, eq. 2.45a) give
+    the full-throttle lapse of a high-bypass turbofan as ``alpha = delta0 (1 - 0.49 sqrt(M0))``
+    with ``delta0 = Pt0 / P_std``: 0.2015 here; the class spread is 0.18-0.22. Max climb
+    runs at about 100 % physical fan speed. With C-MAPSS's throttle convention (TRA 100 =
+    100 % *corrected* fan speed at every altitude) that is 108 % corrected at 35 kft, TRA
+    about 130, beyond the TRA range of the data (<= 105): the point is solved with the
+    envelope check off. At TRA 100 (92.6 % physical fan speed) the lapse is 0.144, which is
+    the convention's consequence, not a defect of the cycle (README, "Throttle schedule").
+    """
+    alt, mach = 35000.0, 0.8
+    T2_K = isa_t2_R(alt, mach, 0.0) / 1.8
+    pct = 100.0 / np.sqrt(T2_K / 288.15)  # corrected fan speed at 100 % physical
+    tra = brentq(lambda t: float(model.design.nf_demand_pct(t)) - pct, 100.0, 200.0)
+    w = np.array([[0.0, 0.0, 100.0, isa_t2_R(0.0, 0.0, 0.0)], [alt, mach, tra, T2_K * 1.8]])
+    res = model.solve(w, check=False)
+    assert res.converged.all()
+    fn = [float(turbofan.cycle(model.design, list(w[k]), [0.0] * N_TH, list(res.x[k]))[1]["Fn"])
+          for k in range(2)]
+    nf_phys = 100.0 * res.x[1][7] * np.sqrt(T2_K / 288.15)  # x[7]: corrected fan speed
+    assert nf_phys == pytest.approx(100.0, abs=0.5)
+    delta0 = atmosphere.isa_pressure(alt) * atmosphere.total_pressure_ratio(
+        atmosphere.static_temperature(T2_K, mach), T2_K) / atmosphere.isa_pressure(0.0)
+    mattingly = delta0 * (1.0 - 0.49 * np.sqrt(mach))
+    assert mattingly == pytest.approx(0.2015, abs=2e-3)
+    assert 0.18 <= fn[1] / fn[0] <= 0.22, (fn[1] / fn[0], mattingly)
 
 
 # ------------------------------------------------------------------ effects extension point
