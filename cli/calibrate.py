@@ -42,12 +42,13 @@ _METHODS = "ukf, ekf, mhe or map_cycle"
 
 def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
     from calibration import CalibrationSetup
+    from calibration.discrepancy.drift_mle import drift_value
     from engine_model.channels import THETA_NAMES
 
     p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
-                drift_std_per_sqrt_h=drift, noise_scale=noise_scale, prior_std=prior_std,
-                drift_per=drift_per)
+                drift_std_per_sqrt_h=drift_value(drift), noise_scale=noise_scale,
+                prior_std=prior_std, drift_per=drift_per)
     return CalibrationSetup(**kw)
 
 
@@ -74,8 +75,9 @@ Params = Annotated[str | None, typer.Option(
     "paper's HPT_eff_mod,LPT_eff_mod,LPT_flow_mod).")]
 Sensors = Annotated[str | None, typer.Option(
     "--sensors", help="Comma-separated measured channels to use (default: every x_s in the data).")]
-Drift = Annotated[float | None, typer.Option(
-    "--drift", help="Random-walk std of theta per sqrt(hour) (default: 1e-3).")]
+Drift = Annotated[str | None, typer.Option(
+    "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle': estimated from the "
+    "data by maximum likelihood (default: 1e-3).")]
 NoiseScale = Annotated[float | None, typer.Option(
     "--noise-scale", help="Multiplier of the documented sensor noise in R (default: 1).")]
 PriorStd = Annotated[float | None, typer.Option(
@@ -116,6 +118,7 @@ def run(
     import warnings
 
     from calibration import UnobservableWarning
+    from calibration.discrepancy.drift_mle import setup_with_drift_mle
     from calibration.fleet import calibrate_fleet
     from engine_model.channels import XS_NAMES
 
@@ -124,6 +127,7 @@ def run(
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
         opts = _options(method, window, stride, mode, hessian)
         unit_list = parse_units(units)
+        setup = setup_with_drift_mle(drift, data, setup, unit_list)
         if as_json:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
                                   keep_results=False)
@@ -184,10 +188,12 @@ def compare_cmd(
 
     from calibration import UnobservableWarning, estimator_class
     from calibration.compare import compare, format_report
+    from calibration.discrepancy.drift_mle import setup_with_drift_mle
 
     with user_errors(), warnings.catch_warnings():
         warnings.simplefilter("ignore", UnobservableWarning)  # reported in the table
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
+        setup = setup_with_drift_mle(drift, data, setup, parse_units(units))
         names = parse_list(methods, "--methods")
         for m in names:
             estimator_class(m)

@@ -10,7 +10,7 @@ import typer
 
 from cli.common import CliError, console, echo_json, parse_list, parse_units, user_errors
 
-_METHODS = ("mhe", "ukf", "ekf", "map_cycle")
+_METHODS = ("coarse", "mhe", "ukf", "ekf", "map_cycle")
 
 
 def _drift(text: str | None):
@@ -29,8 +29,9 @@ def discover(
     data: Annotated[Path, typer.Argument(help="Dataset: parquet directory or N-CMAPSS h5.")],
     out: Annotated[Path, typer.Option("--out", help="Report directory (discover.json, "
                                       "discover.md, residuals.png).")],
-    method: Annotated[str, typer.Option("--method", help="Estimator of the null fit's warm "
-                                        "start: mhe, ukf, ekf or map_cycle.")] = "mhe",
+    method: Annotated[str, typer.Option("--method", help="Warm start of the null fit: coarse "
+                                        "(the same fit on every 16th sample) or an estimator: "
+                                        "mhe, ukf, ekf, map_cycle.")] = "coarse",
     candidates: Annotated[str | None, typer.Option(
         "--candidates", help="Comma-separated effects to test (default: the library's steady and "
         "sensor effects).")] = None,

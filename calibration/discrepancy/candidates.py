@@ -33,7 +33,7 @@ import casadi as ca
 import numpy as np
 
 from engine_model.channels import OUTPUT_NAMES, THETA_NAMES
-from engine_model.effect_library import SensorEffect
+from engine_model.effect_library import COMPONENT_MODS, SensorEffect
 from engine_model.effects import Effect, EffectSet, parse_effect_spec, registry
 from engine_model.validation import InputError
 
@@ -135,6 +135,8 @@ def build_candidates(names=None, sensors=(), has_cycle=True):
             continue
         if issubclass(cls, SensorEffect):
             out += [_make(parse_effect_spec(f"{n}:channel={c}"), c) for c in sensors]
+        elif "component" in cls.options:  # map adaptation: one instance per component
+            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in COMPONENT_MODS]
         else:
             out.append(_make(parse_effect_spec(n)))
     k = 0
@@ -145,6 +147,36 @@ def build_candidates(names=None, sensors=(), has_cycle=True):
     if not tested:
         raise InputError("--candidates: no candidate effect to test on these data")
     return out, tested
+
+
+def steady_effects(names=None, values: dict | None = None) -> list:
+    """The steady effects that :func:`build_candidates` puts into the candidate model for
+    ``names``, in its order, with ``values`` (``{instance name: {parameter: value}}``, e.g.
+    ``{"map_scaling_HPC": {"eff_1": 0.05}}``) switched on: a truth model built from them is
+    the candidate model's compiled variant (the same names, the same C code)."""
+    reg = registry()
+    tested_names = check_names(names)
+    values = values or {}
+    out = []
+    for n in list(STEADY_DEFAULT) + [n for n in tested_names if n not in STEADY_DEFAULT
+                                     and n not in SENSOR_DEFAULT]:
+        cls = reg[n]
+        if issubclass(cls, SensorEffect) or any(q.kind == "context" for q in cls.params):
+            continue
+        opts = ([f"component={c}" for c in COMPONENT_MODS] if "component" in cls.options
+                else [""])
+        for o in opts:
+            inst = parse_effect_spec(n + (":" + o if o else ""))
+            v = values.get(inst.name, {})
+            if v:
+                items = [o] if o else []
+                items += [f"{k}={x!r}" for k, x in v.items()]
+                inst = parse_effect_spec(n + ":" + ",".join(items))
+            out.append(inst)
+    unknown = set(values) - {e.name for e in out}
+    if unknown:
+        raise InputError(f"steady_effects: no carried effect named {', '.join(sorted(unknown))}")
+    return out
 
 
 @dataclass
@@ -167,7 +199,8 @@ class CandidateModel:
     ``phi`` is the loop's global vector (zeros: the base model). Sensor effects are applied
     in candidate order after the steady solve."""
 
-    def __init__(self, candidates: list[Candidate], design=None, compiled: bool = True):
+    def __init__(self, candidates: list[Candidate], design=None, compiled: bool = True,
+                 model=None):
         from engine_model import EngineModel
 
         self.candidates = candidates
@@ -175,8 +208,11 @@ class CandidateModel:
         steady = [c for c in candidates if not c.sensor]
         self.steady = steady
         self.sensor = [c for c in candidates if c.sensor]
-        self.model = EngineModel(design=design, effects=[c.effect for c in steady],
-                                 compiled=compiled)
+        if model is not None and steady:
+            raise InputError("CandidateModel: a given model serves no steady candidate")
+        # no steady candidate: the given (base) model as it is, no variant to build
+        self.model = model if model is not None else EngineModel(
+            design=design, effects=[c.effect for c in steady], compiled=compiled)
         self._set = EffectSet([c.effect for c in steady])
         names = list(self._set.param_names)
         # global phi index -> column of the steady model's p

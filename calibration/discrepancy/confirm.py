@@ -132,10 +132,11 @@ def confirm(problem: Problem, null: FitState, candidate, phi1: np.ndarray, weigh
     if masks is not None and p <= p_crit and share_ok:
         train, held = masks
         nt_fit = (null_train() if null_train is not None else
-                  fit(problem, null.Theta, null.phi, accepted, masks=train, xs=null.lin.x))
-        alt_train = fit(problem, alt.Theta, alt.phi, free, masks=train, xs=alt.lin.x)
-        s_null = (problem.linearize(null.Theta, null.phi, null.lin.x, held,
-                                    derivatives=False).sse if accepted.size == 0 else
+                  fit(problem, null.Theta, null.phi, accepted, masks=train, xs=null.lin.x,
+                      lin=null.lin))
+        alt_train = fit(problem, alt.Theta, alt.phi, free, masks=train, xs=alt.lin.x,
+                        lin=alt.lin)
+        s_null = (problem.masked(null.lin, held).sse if accepted.size == 0 else
                   held_out_sse(problem, null, nt_fit.phi, held))
         s_alt = held_out_sse(problem, alt, alt_train.phi, held)
         ok_held = s_alt < s_null

@@ -13,12 +13,22 @@ scalar search, :func:`scipy.optimize.minimize_scalar`) and the fit is redone at 
 (one round: the linearisation point moves little). This replaces a hand-set ``--drift``: on
 the ``tiny`` fleet (10-cycle lives, fast wear) it gives q of about 0.003 per sqrt(hour) for the
 per-cycle model, three times the default 1e-3.
+
+The same estimate serves the estimators of :mod:`calibration` (``hyprog calibrate --drift
+mle``, :func:`setup_with_drift_mle`): ``q`` is the random walk of theta per sqrt(hour of
+operation), whether its prior puts a flight's wear at the next cycle's first sample
+(``drift_per="cycle"``, the model here) or spreads it over the flight (``"time"``: the sum
+of a flight's steps has the same variance ``q^2 tau``). It is estimated between flights, so the
+data need a ``cycle`` column and a unit with two or more cycles.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import minimize_scalar
+
+from calibration.setup import CalibrationSetup
+from engine_model.validation import InputError
 
 from .null_fit import FitState, Problem
 
@@ -59,3 +69,64 @@ def drift_mle(problem: Problem, state: FitState) -> float:
     r = minimize_scalar(lambda lq: neg_log_evidence(problem, state, float(np.exp(lq))),
                         bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
     return float(np.exp(r.x))
+
+
+def drift_value(text) -> float | None:
+    """The ``--drift`` option's number (None when not given or ``mle``); anything else that
+    is not a positive number is an :class:`InputError`."""
+    if text is None or text == "mle":
+        return None
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise InputError(f"--drift {text}: expected 'mle' or a number") from None
+    if not v > 0:
+        raise InputError(f"--drift {text}: must be positive")
+    return v
+
+
+def estimate_drift(frames: list, setup: CalibrationSetup, model=None, source=None) -> float:
+    """The maximum-likelihood ``q`` [per sqrt(hour)] of the units ``frames`` (one DataFrame
+    each, hyprog names): the per-cycle fit of :mod:`.null_fit` (no candidate effect; warm
+    start ``coarse``), ``q`` at its linearisation, the fit redone at that ``q`` and ``q``
+    once more."""
+    from dataclasses import replace
+
+    from .candidates import CandidateModel
+    from .null_fit import coarse_start, fit, unit_data
+
+    if model is None:
+        from engine_model.shared_model import default_model
+
+        model = default_model()
+    cycle_setup = replace(setup, drift_per="cycle")
+    units = [unit_data(f, cycle_setup, source) for f in frames]
+    if all(u.n_cycles < 2 for u in units):
+        where = f"{source}: " if source is not None else ""
+        raise InputError(f"{where}--drift mle: no unit has two or more flight cycles (a "
+                         "'cycle' column); theta's drift is estimated between cycles")
+    problem = Problem(units, cycle_setup, CandidateModel([], model=model))
+    phi = np.zeros(0)
+    state = fit(problem, coarse_start(problem, phi), phi)
+    for _ in range(2):
+        problem.q = drift_mle(problem, state)
+        state = fit(problem, state.Theta, phi, xs=state.lin.x, lin=state.lin)
+    return float(problem.q)
+
+
+def setup_with_drift_mle(text, data, setup: CalibrationSetup, units=None,
+                         model=None) -> CalibrationSetup:
+    """``setup`` with ``q`` estimated from the dataset ``data`` (path; ``units``: the units
+    to use, default all) when ``text`` is ``"mle"``; otherwise ``setup`` unchanged."""
+    if text != "mle":
+        return setup
+    from dataclasses import replace
+
+    from engine_model.datasets import read_dataset
+
+    df, _meta = read_dataset(data, units=units)
+    if "unit" not in df.columns:
+        df = df.assign(unit=1)
+    frames = [g for _, g in df.groupby("unit", sort=True)]
+    q = estimate_drift(frames, setup, model, source=data)
+    return replace(setup, drift_std_per_sqrt_h=q)

