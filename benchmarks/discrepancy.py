@@ -6,13 +6,20 @@ after.
     python benchmarks/discrepancy.py --sizes 0.5,1,3 --seeds 0,1,2 --null-fleets 20
     python benchmarks/discrepancy.py --effects customer_bleed,hp_offtake --units 1,2
 
+Resumable: every run is appended to ``--runs`` (JSON lines, default
+``benchmarks/results/discrepancy_runs.jsonl``) as soon as it ends, keyed by (effect, size,
+seed, unit, method); a rerun with the same file skips the runs already there, so an
+interrupted benchmark continues where it stopped. The table (``--table``, Markdown) and the
+JSON of the runs asked for (``--out``) are written at the end from the cached runs.
+
 Sizes are multiples of each effect's documented realistic size (``Param.typical``; the T48
 sensor offset: +6 degR, about 1.5 sigma of the channel at cruise). Steady effects are switched
 on in the truth model (the candidate model's variant, same compiled code); sensor effects
 (bias, drift on T48) are applied to the noise-free readings through the effect's own ``apply``
 before the simulator's noise, which is what the simulator does with a sensor effect in the
 truth. Fleets: units of the ``tiny`` preset (one per run by default). Each run is one
-:func:`discover` call (warm start ``ukf``, q by maximum likelihood, alpha 0.01).
+:func:`discover` call (warm start ``coarse`` unless ``--method``, q by maximum likelihood,
+alpha 0.01).
 
 Reported per effect and size: detection rate (anything added or an unknown effect),
 identification rate (the true effect added first), residual RMSE of the most affected channel
@@ -120,39 +127,70 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--units", default="1", help="tiny units, one run each")
     ap.add_argument("--null-fleets", type=int, default=2)
-    ap.add_argument("--method", default="ukf")
+    ap.add_argument("--method", default="coarse")
     ap.add_argument("--cmapss", help="run on C-MAPSS operating-point means instead (e.g. "
                     "data_samples/cmapss-fd002-operating-points.csv)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" /
                                           "discrepancy.json"))
+    ap.add_argument("--runs", default=str(Path(__file__).parent / "results" /
+                                           "discrepancy_runs.jsonl"),
+                    help="cache of finished runs (JSON lines): a rerun skips them")
+    ap.add_argument("--table", default=str(Path(__file__).parent / "results" /
+                                            "discrepancy_table.md"))
     a = ap.parse_args(argv)
     base = default_model()
     if a.cmapss:
         return cmapss(base, a.cmapss, a.method)
     opts = DiscoverOptions(method=a.method)
+    cache_path = Path(a.runs)
+    cache_path.parent.mkdir(parents=True, exist_ok=True)
+    done = {}
+    if cache_path.exists():
+        for line in cache_path.read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                done[_key(r)] = r
+    print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'}); "
+          f"{len(done)} cached runs in {cache_path}")
+    cells = [(name, float(size), int(seed), int(unit))
+             for name in filter(None, a.effects.split(","))
+             for size in a.sizes.split(",") for seed in a.seeds.split(",")
+             for unit in a.units.split(",")]
+    cells += [(None, 0.0, 1000 + k, 1 + k % 4) for k in range(a.null_fleets)]
     runs = []
-    print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'})")
-    for name in filter(None, a.effects.split(",")):
-        for size in map(float, a.sizes.split(",")):
-            for seed in map(int, a.seeds.split(",")):
-                for unit in map(int, a.units.split(",")):
-                    df, eff = simulate(base, name, size, unit, seed)
-                    r = one_run(base, [df], opts, name)
-                    r.update(size=size, seed=seed, unit=unit, spec=eff.spec())
-                    runs.append(r)
-                    print(json.dumps(r), flush=True)
-    for k in range(a.null_fleets):
-        df, _, _ = fleet.simulate("tiny", units=[1 + k % 4], seed=1000 + k, model=base)
-        r = one_run(base, [df], opts)
-        r.update(size=0.0, seed=1000 + k, unit=1 + k % 4, spec="none")
+    for name, size, seed, unit in cells:
+        key = (name, size, seed, unit, a.method)
+        if key in done:
+            runs.append(done[key])
+            continue
+        if name is None:
+            df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base)
+            spec = "none"
+        else:
+            df, eff = simulate(base, name, size, unit, seed)
+            spec = eff.spec()
+        r = one_run(base, [df], opts, name)
+        r.update(size=size, seed=seed, unit=unit, spec=spec, method=a.method)
         runs.append(r)
+        with cache_path.open("a") as fh:
+            fh.write(json.dumps(r) + "\n")
         print(json.dumps(r), flush=True)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(runs, indent=1))
-    print()
-    print("| effect | size | runs | detected | identified | channel RMSE before -> after |"
-          " theta bias before -> after | verdicts |")
-    print("|---|---|---|---|---|---|---|---|")
+    lines = table(runs)
+    print("\n".join(lines))
+    Path(a.table).write_text("\n".join(lines) + "\n")
+
+
+def _key(r: dict) -> tuple:
+    return (r["truth"], float(r["size"]), int(r["seed"]), int(r["unit"]),
+            r.get("method", "ukf"))
+
+
+def table(runs: list) -> list:
+    """The Markdown table of ``runs`` (one row per effect and size) and the no-effect line."""
+    out = ["| effect | size | runs | detected | identified | channel RMSE before -> after |"
+           " theta bias before -> after | verdicts |", "|---|---|---|---|---|---|---|---|"]
     keys = sorted({(r["truth"] or "none", r["size"]) for r in runs}, key=str)
     for name, size in keys:
         rs = [r for r in runs if (r["truth"] or "none") == name and r["size"] == size]
@@ -163,15 +201,16 @@ def main(argv=None):
         tb = np.mean([r["theta_bias_before"] for r in rs])
         ta = np.mean([r["theta_bias_after"] for r in rs])
         verdicts = ", ".join(sorted({r["verdict"] for r in rs}))
-        print(f"| {name} | {size:g} | {len(rs)} | {det:.0%} | "
-              f"{'-' if name == 'none' else f'{idf:.0%}'} | {rs[0]['channel']} {rb:.2f} -> "
-              f"{ra:.2f} | {tb:.2e} -> {ta:.2e} | {verdicts} |")
+        out.append(f"| {name} | {size:g} | {len(rs)} | {det:.0%} | "
+                   f"{'-' if name == 'none' else f'{idf:.0%}'} | {rs[0]['channel']} "
+                   f"{rb:.2f} -> {ra:.2f} | {tb:.2e} -> {ta:.2e} | {verdicts} |")
     nulls = [r for r in runs if r["truth"] is None]
     if nulls:
         fd = np.mean([bool(r["found"]) for r in nulls])
-        print(f"\nno-effect fleets: {len(nulls)}, false discoveries (an effect added) "
-              f"{fd:.0%}, 'unknown effect' "
-              f"{np.mean([r['verdict'] == 'unknown effect' for r in nulls]):.0%}")
+        out.append(f"\nno-effect fleets: {len(nulls)}, false discoveries (an effect added) "
+                   f"{fd:.0%}, 'unknown effect' "
+                   f"{np.mean([r['verdict'] == 'unknown effect' for r in nulls]):.0%}")
+    return out
 
 
 if __name__ == "__main__":
