@@ -31,6 +31,20 @@ inlet_loss         an extra intake total-pressure loss (damage, ice, a poor inta
                    ``P2 <- P2 (1 - dp - dp_ram Mach^2)``.
 nozzle_area        a change of the core (``dA8``) and bypass (``dA18``) nozzle throat areas,
                    fractions (erosion, a mis-rigged variable nozzle, a trim).
+map_scaling        map adaptation of one component (option ``component``: fan, LPC, HPC,
+                   HPT, LPT): its efficiency and flow scalers vary with its corrected speed,
+                   ``d_eff = eff_1 dn + eff_2 dn^2`` and ``d_flow = flow_1 dn + flow_2 dn^2``
+                   with ``dn = n_corr - 1`` (``n_corr``: corrected speed relative to the SLS
+                   design point), added to the component's modifiers. A generic map scaled
+                   to the design point is right there and drifts away from the real
+                   component's towards part power; performance engineers correct it with
+                   scaling factors that depend on the operating point ("modification
+                   factors", Stamatis, Mathioudakis & Papailiou, ASME J. Eng. Gas Turbines
+                   Power 112, 1990; scaling factors along the operating line, Li & Pilidis,
+                   2010; Kurzke, ASME GT2011 on which shapes a map can physically take;
+                   polynomial map tuning, Tsoutsanis et al., Applied Energy 135, 2014). The
+                   constant term is left out: at the design speed the scaler is theta itself
+                   (the health parameter), so the effect is the shape, not the level.
 sensor_bias        a sensor offset and gain on one channel: ``x <- x (1 + gain) + offset``.
 sensor_drift       a sensor whose gain drifts with use: ``x <- x (1 + rate cycle)``; the
                    flight ``cycle`` is a per-row context parameter.
@@ -54,6 +68,10 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
   (RNI = 1); at cruise the hot section runs hotter (``T48``, ``Wf`` up).
 - inlet_loss: ``P2`` falls, so every pressure downstream falls with it.
 - nozzle_area (a larger core nozzle): the LPT expands further, ``P50`` falls; ``T50`` falls.
+- map_scaling: at SLS full power the component runs at its design corrected speed (dn = 0)
+  and nothing moves; at cruise (TRA 80, dn < 0) a positive ``eff_1`` lowers the component's
+  efficiency, so the burner runs hotter (``T48``, ``T50``, ``Wf`` up) for an HPC, HPT or
+  LPT (the instance's ``moves`` and ``signature`` are per component).
 - sensor_bias / sensor_drift: only the chosen channel moves; every other output is unchanged.
 """
 
@@ -173,6 +191,66 @@ class NozzleArea(Effect):
             return value * (1.0 + p["dA8"])
         if hook == "A18":
             return value * (1.0 + p["dA18"])
+        return value
+
+
+@register
+class MapScaling(Effect):
+    name = "map_scaling"
+    options = ("component",)
+    description = ("Map adaptation of one component (option component): efficiency and flow "
+                   "scalers that vary with its corrected speed, d = c1 (n_corr - 1) + "
+                   "c2 (n_corr - 1)^2.")
+    params = (
+        Param("eff_1", "-", 0.0, "efficiency scaler per unit of (n_corr - 1)", 0.05,
+              (-0.2, 0.2), valid=(-1.0, 1.0)),
+        Param("eff_2", "-", 0.0, "efficiency scaler per unit of (n_corr - 1)^2", 0.2,
+              (-1.0, 1.0), valid=(-5.0, 5.0)),
+        Param("flow_1", "-", 0.0, "flow scaler per unit of (n_corr - 1)", 0.05, (-0.2, 0.2),
+              valid=(-1.0, 1.0)),
+        Param("flow_2", "-", 0.0, "flow scaler per unit of (n_corr - 1)^2", 0.2, (-1.0, 1.0),
+              valid=(-5.0, 5.0)),
+    )
+    moves = ("<component>",)  # per instance: MOVES[component]
+    signature = {"SLS": {}, "CRZ": {}}
+    # every parameter at its typical size: the measured channels that move by more than
+    # 0.1 % at CRZ (n_corr below 1; tests/test_effects.py checks them) and the signs at CRZ.
+    # The LPT runs at nearly its design corrected speed at CRZ (T49 falls with T2), so it
+    # moves nothing there; its shape shows at part power.
+    MOVES = {
+        "fan": ("Wf", "T48", "P15", "P21", "Ps30", "P30", "P40", "P50"),
+        "LPC": ("P24",),
+        "HPC": ("Wf", "T30", "T40", "T48", "T50", "P24"),
+        "HPT": (),
+        "LPT": (),
+    }
+    SIGNS = {"fan": {"Wf": -1, "P15": -1, "P30": -1},
+             "LPC": {"P24": -1, "T24": -1},
+             "HPC": {"Wf": +1, "T30": +1, "T48": +1, "T50": +1},
+             "HPT": {"Wf": +1, "T48": +1, "T50": +1},
+             "LPT": {}}
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        comp = self.opts.get("component")
+        if comp is None:
+            raise EffectSpecError("effect map_scaling: option 'component' is required (e.g. "
+                                  "map_scaling:component=HPC,eff_1=0.05)")
+        if comp not in COMPONENT_MODS:
+            raise EffectSpecError(f"effect map_scaling: unknown component {comp!r}; one of "
+                                  f"{', '.join(COMPONENT_MODS)}")
+        self.component = comp
+        self.name = f"map_scaling_{comp}"
+        self.moves = self.MOVES[comp]
+        self.signature = {"SLS": {}, "CRZ": dict(self.SIGNS[comp])}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == f"{self.component}_eff_mod":
+            dn = ctx["n_corr"] - 1.0
+            return value + p["eff_1"] * dn + p["eff_2"] * dn * dn
+        if hook == f"{self.component}_flow_mod":
+            dn = ctx["n_corr"] - 1.0
+            return value + p["flow_1"] * dn + p["flow_2"] * dn * dn
         return value
 
 

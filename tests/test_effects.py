@@ -27,7 +27,9 @@ STEADY = sorted(n for n, c in registry().items() if not c.series)
 
 
 def _instance(cls):
-    return cls(channel="T48") if "channel" in cls.options else cls()
+    if "channel" in cls.options:
+        return cls(channel="T48")
+    return cls(component="HPC") if "component" in cls.options else cls()
 
 
 def _typical(cls):
@@ -52,11 +54,12 @@ def effect_runs(model):
     runs = {}
     for name in STEADY:
         cls = registry()[name]
-        m = EngineModel(design=model.design, effects=[_instance(cls)], compiled=False)
+        inst = _instance(cls)
+        m = EngineModel(design=model.design, effects=[inst], compiled=False)
         y0 = m.evaluate(W, p=np.asarray(m.p_default, float))
         y1 = m.evaluate(W, p=_typical(cls))
         assert y0["converged"].all() and y1["converged"].all(), name
-        runs[name] = (cls, y0[list(OUTPUT_NAMES)].astype(float),
+        runs[name] = (inst, y0[list(OUTPUT_NAMES)].astype(float),
                       y1[list(OUTPUT_NAMES)].astype(float))
     return runs
 
@@ -69,7 +72,7 @@ def test_every_effect_is_neutral_at_its_defaults(model, effect_runs):
 
 @pytest.mark.parametrize("name", STEADY)
 def test_signature_table(effect_runs, name):
-    cls, y0, y1 = effect_runs[name]
+    cls, y0, y1 = effect_runs[name]  # the instance: a component's moves are its own
     rel = (y1 - y0) / y0.abs()
     assert set(cls.signature) == set(POINTS)
     for i, label in enumerate(POINTS):
@@ -188,3 +191,20 @@ def test_dynamics_on_a_flight_lags_spools_and_temperatures():
     assert (out["T48"][k] - 1900) / 100 == pytest.approx(1 - np.exp(-60 / 60), abs=0.01)
     assert (out["Nc"][102] - 9000) / 500 == pytest.approx(1 - np.exp(-2 / 2), abs=0.15)
     assert out["Nc"].iloc[-1] == pytest.approx(9500, abs=1e-6)
+
+
+def test_map_scaling_is_a_shape_in_corrected_speed(model):
+    """At the design corrected speed (SLS, full power) the map is right and nothing moves; at
+    part power a positive eff_1 lowers the HPC's efficiency: T48 rises. A component is
+    required and must be one of the five."""
+    m = EngineModel(design=model.design,
+                    effects=[parse_effect_spec("map_scaling:component=HPC")], compiled=False)
+    w = w_rows([(0.0, 0.0, 100.0), (0.0, 0.0, 60.0)])
+    y0 = m.evaluate(w, p=np.zeros(4))
+    y1 = m.evaluate(w, p=np.array([0.05, 0.0, 0.0, 0.0]))
+    rel = ((y1[list(OUTPUT_NAMES)] - y0[list(OUTPUT_NAMES)]) / y0[list(OUTPUT_NAMES)].abs())
+    assert rel.iloc[0].abs().max() < 1e-9
+    assert rel.iloc[1]["T48"] > 1e-4
+    for spec in ("map_scaling", "map_scaling:component=HPX"):
+        with pytest.raises(EffectSpecError, match="component"):
+            parse_effect_spec(spec)
