@@ -18,10 +18,13 @@ from typer.testing import CliRunner
 from calibration import CalibrationSetup
 from calibration.discrepancy import DiscoverOptions, discover
 from calibration.discrepancy.candidates import (
+    SENSOR_DEFAULT,
     STEADY_DEFAULT,
     CandidateModel,
     build_candidates,
+    steady_effects,
 )
+from calibration.discrepancy.drift_mle import setup_with_drift_mle
 from calibration.discrepancy.max_stat import screen
 from calibration.discrepancy.null_fit import Problem, fit, unit_data
 from calibration.discrepancy.score_test import efficient_scores
@@ -31,7 +34,7 @@ from engine_model.effects import parse_effect_spec
 
 BLEED = 0.015
 SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
-FAST = dict(method="ukf", n_draws=5000)
+FAST = dict(n_draws=5000)  # warm start: coarse (the default)
 
 
 def _truth(model, **bleed):
@@ -105,6 +108,25 @@ def test_withheld_effect_is_an_unknown_effect_on_the_right_channels(bleed_fleet,
     assert set(d.unknown["hint"]) == set(ch)
 
 
+# the HPC's efficiency scaler falls by 0.05 per unit of corrected speed below design: -1 %
+# at 80 % corrected speed (descent, idle), nothing at the design speed (a generic map scaled
+# to the design point, wrong at part power)
+MAP_EFF = 0.05
+
+
+def test_speed_dependent_map_error_names_the_component(model):
+    names = STEADY_DEFAULT + ("map_scaling",) + SENSOR_DEFAULT
+    truth = EngineModel(design=model.design, effects=steady_effects(
+        names, {"map_scaling_HPC": {"eff_1": MAP_EFF}}))
+    eff = parse_effect_spec(f"map_scaling:component=HPC,eff_1={MAP_EFF}")
+    df, _, _ = fleet.simulate("tiny", units=[1], seed=11, model=truth, effects=[eff])
+    d = discover([df], SETUP, DiscoverOptions(drift=0.01, candidates=names, **FAST),
+                 base_model=model)
+    assert [f["name"] for f in d.found][:1] == ["map_scaling_HPC"], (d.found, d.ambiguous)
+    lo, hi = d.found[0]["ci95"]["eff_1"]
+    assert lo <= MAP_EFF <= hi, d.found[0]["params"]
+
+
 @pytest.mark.parametrize("seed", [3])  # a second no-effect fleet: the CLI test (seed 2)
 def test_nothing_missing_without_an_effect(model, seed):
     df, _, _ = fleet.simulate("tiny", units=[2], seed=seed, model=model)
@@ -138,11 +160,53 @@ def test_score_statistic_equals_the_likelihood_ratio_on_a_small_effect(model):
     assert res.T[[c.name for c in tested].index("sensor_bias_T48")] > 20
 
 
-def test_cli_discover_writes_the_report(tmp_path, model):
-    data = tmp_path / "clean"
+def test_masked_linearisation_is_the_masked_evaluation(model):
+    """Problem.masked (no model run) gives the Gauss-Newton blocks of a masked evaluation."""
+    df, _, _ = fleet.simulate("tiny", units=[1], seed=5, model=model)
+    units = [unit_data(df[df.cycle <= 2].copy(), SETUP)]
+    carried, _ = build_candidates(("sensor_bias", "customer_bleed"), units[0].series.sensors)
+    pr = Problem(units, SETUP, CandidateModel(carried, design=model.design))
+    Theta, phi = [np.full((2, 3), 1e-3)], np.zeros(pr.n_phi)
+    mask = [(np.random.default_rng(0).random(units[0].n) < 0.6).astype(float)]
+    full = pr.linearize(Theta, phi)
+    a, b = pr.masked(full, mask), pr.linearize(Theta, phi, full.x, mask)
+    assert a.sse == pytest.approx(b.sse, rel=1e-9)
+    for name in ("A", "B", "g_th"):
+        np.testing.assert_allclose(getattr(a, name)[0], getattr(b, name)[0], rtol=1e-7,
+                                   atol=1e-9, err_msg=name)
+    np.testing.assert_allclose(a.D, b.D, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(a.g_phi, b.g_phi, rtol=1e-7, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def clean_dir(tmp_path_factory, model):
+    """One no-effect ``tiny`` unit written as a dataset."""
+    data = tmp_path_factory.mktemp("discover") / "clean"
     fleet.simulate("tiny", out=data, units=[3], seed=2, model=model)
+    return data
+
+
+def test_drift_mle_for_the_estimators(clean_dir, model):
+    """``hyprog calibrate --drift mle``: q from the per-cycle fit, put into the setup."""
+    s = setup_with_drift_mle("mle", clean_dir, SETUP, model=model)
+    assert 1e-4 < s.drift_std_per_sqrt_h < 0.1
+    assert s.drift_std_per_sqrt_h != SETUP.drift_std_per_sqrt_h
+    assert setup_with_drift_mle("0.01", clean_dir, SETUP) is SETUP
+
+
+@pytest.mark.parametrize("drift, msg", [("abc", "--drift abc"), ("-1", "must be positive")])
+def test_cli_calibrate_bad_drift_is_one_line(tmp_path, drift, msg):
+    r = CliRunner().invoke(app, ["calibrate", str(tmp_path / "none"), "--out",
+                                 str(tmp_path / "o"), "--drift", drift])
+    assert r.exit_code == 2
+    lines = [x for x in r.output.splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and msg in lines[0]
+
+
+def test_cli_discover_writes_the_report(tmp_path, clean_dir):
+    data = clean_dir
     out = tmp_path / "rep"
-    r = CliRunner().invoke(app, ["discover", str(data), "--out", str(out), "--method", "ukf",
+    r = CliRunner().invoke(app, ["discover", str(data), "--out", str(out), "--method", "coarse",
                                  "--drift", "0.01", "--json"])
     assert r.exit_code == 0, r.output
     rep = json.loads(r.stdout)
