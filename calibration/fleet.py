@@ -14,11 +14,21 @@ Units are independent, so they are spread over workers:
   (a shared file system). Without a cluster, ``scheduler="local"`` starts a
   ``distributed.LocalCluster`` of ``jobs`` single-threaded worker processes.
 
+Effects. ``effects`` (specification strings such as ``"customer_bleed:f0=0.02"`` or
+:class:`engine_model.effects.Effect` instances) are switched on in the engine model that every
+unit is calibrated with, their parameters held at the given values (theta alone is estimated):
+what ``hyprog discover`` found, put back into the model (``hyprog pipeline --augment``). Each
+worker builds that model variant once (:func:`worker_model`); the effects, as canonical
+specifications (:meth:`Effect.spec`), are part of the ``calibration`` metadata, so a resumed
+run with other effects is refused like one with other settings.
+
 Tasks. The random-walk filters (``ukf``, ``ekf``) run many units in lockstep in one process
 (:mod:`calibration.kalman`), so their units are split into one group per worker, balanced by
-samples (longest-processing-time first); the windowed estimators (``mhe``, ``map_cycle``) get
-one unit per task, longest first. A worker reads only its units from ``data`` (partition
-pruning), so a large fleet is never shipped whole.
+samples (longest-processing-time first) and cut into tasks of at most
+:data:`LOCKSTEP_MAX_ROWS` samples; the windowed estimators (``mhe``, ``map_cycle``) get one
+unit per task, longest first. A worker reads only its units from ``data`` (partition pruning),
+so a large fleet is never shipped whole, and the client reads one unit at a time (the checks
+before the work); memory is bounded by the largest task, not by the fleet.
 
 Output (``out``): the paper's feature table, a parquet directory partitioned by unit in the
 layout of :mod:`engine_model.datasets`, one unit written atomically as soon as it is done
@@ -73,6 +83,10 @@ from .setup import CalibrationSetup
 from .unit_check import check_result, check_units
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
+#: Most samples in one lockstep task (about three DS02 units at 0.1 Hz): what a task holds in
+#: memory is bounded whatever the fleet's size. A unit's estimate does not depend on the units
+#: it runs beside (tests/test_calibration_fleet.py), so the cut changes no number.
+LOCKSTEP_MAX_ROWS = 250_000
 
 
 @dataclass
@@ -80,7 +94,8 @@ class FleetRun:
     """What :func:`calibrate_fleet` did. ``results``: unit -> :class:`CalibrationResult`
     (only when ``keep_results``); ``units``: unit -> summary dict (samples, seconds,
     non-converged, unobservable, warnings); ``skipped``: units already in ``out``;
-    ``sensors``: the measured channels used; ``warnings``: every unit's warnings."""
+    ``sensors``: the measured channels used; ``warnings``: every unit's warnings;
+    ``effects``: the effects in the model (canonical specifications)."""
 
     method: str
     setup: CalibrationSetup
@@ -94,6 +109,7 @@ class FleetRun:
     workers: int = 1
     sensors: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    effects: list = field(default_factory=list)
 
     @property
     def samples(self) -> int:
@@ -105,9 +121,13 @@ class FleetRun:
 
 
 # ----------------------------------------------------------------------------- planning
-def plan_tasks(lengths: dict, method: str, n_workers: int) -> list[list]:
+def plan_tasks(lengths: dict, method: str, n_workers: int,
+               max_rows: int | None = None) -> list[list]:
     """Units grouped into tasks (module docstring): balanced lockstep groups for the filters,
-    single units, longest first, for the windowed estimators."""
+    single units, longest first, for the windowed estimators. A lockstep group is cut into
+    tasks of at most ``max_rows`` samples [:data:`LOCKSTEP_MAX_ROWS`] (at least one unit each),
+    so that a task's memory does not grow with the fleet."""
+    max_rows = LOCKSTEP_MAX_ROWS if max_rows is None else max_rows
     order = sorted(lengths, key=lambda u: (-lengths[u], u))
     if method not in LOCKSTEP_METHODS:
         return [[u] for u in order]
@@ -118,7 +138,18 @@ def plan_tasks(lengths: dict, method: str, n_workers: int) -> list[list]:
         j = int(np.argmin(load))
         groups[j].append(u)
         load[j] += lengths[u]
-    return [g for g in groups if g]
+    tasks = []
+    for g in groups:
+        task, rows = [], 0
+        for u in g:
+            if task and rows + lengths[u] > max_rows:
+                tasks.append(task)
+                task, rows = [], 0
+            task.append(u)
+            rows += lengths[u]
+        if task:
+            tasks.append(task)
+    return tasks
 
 
 def setup_dict(setup: CalibrationSetup) -> dict:
@@ -126,21 +157,26 @@ def setup_dict(setup: CalibrationSetup) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
 
 
+def effect_specs(effects) -> list[str]:
+    """``effects`` (specification strings or :class:`Effect` instances) as canonical
+    specification strings (bad specifications are an :class:`InputError`)."""
+    from engine_model.effects import parse_effect_spec
+
+    out = []
+    for e in effects or ():
+        out.append(parse_effect_spec(e).spec() if isinstance(e, str) else e.spec())
+    return out
+
+
 # ----------------------------------------------------------------------------- workers
-_WORKER_MODEL = {}
+def worker_model(threads: int | None, effects: Sequence[str] = ()):
+    """The compiled model of this process for ``effects`` (canonical specifications, held at
+    their values), built once per process (:func:`engine_model.cluster.process_model`): the
+    process-wide default model when there are no effects and ``threads`` is None, else a
+    ``threads``-threaded variant (single-threaded in a worker)."""
+    from engine_model.cluster import process_model
 
-
-def _worker_model(threads: int | None):
-    """The compiled model of this worker process (single-threaded in parallel runs)."""
-    if threads is None:
-        from .base import default_model
-
-        return default_model()
-    if threads not in _WORKER_MODEL:
-        from engine_model import EngineModel
-
-        _WORKER_MODEL[threads] = EngineModel(n_threads=threads)
-    return _WORKER_MODEL[threads]
+    return process_model(effects, threads)
 
 
 def unit_frames(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
@@ -166,7 +202,7 @@ def run_task(task: dict) -> list[tuple]:
         df, _ = datasets.read_dataset(task["path"], units=task["units"], source_rows=True)
         by_unit = unit_frames(df)
         frames = [by_unit[u] for u in task["units"]]
-    model = _worker_model(task.get("threads"))
+    model = worker_model(task.get("threads"), task.get("effects", ()))
     est = estimator_class(method)(model=model, **options)
     results = est.estimate_many(frames, setup, task.get("source"))
     out = []
@@ -259,39 +295,19 @@ class _Processes:
 
 
 class _Dask:
+    """Tasks on a Dask cluster (:func:`engine_model.cluster.connect`)."""
+
     def __init__(self, scheduler, jobs):
-        try:
-            from distributed import Client, LocalCluster
-        except ModuleNotFoundError:  # pragma: no cover - a dependency of hyprog
-            raise InputError("--scheduler needs the 'distributed' package") from None
-        self.cluster = None
-        if isinstance(scheduler, str) and scheduler == "local":
-            self.cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1,
-                                        processes=True, dashboard_address=None)
-            self.client = Client(self.cluster)
-        elif isinstance(scheduler, str):
-            try:
-                self.client = Client(scheduler, timeout="20s")
-            except OSError as e:
-                raise InputError(f"Dask scheduler {scheduler}: cannot connect ({e})") from None
-        else:
-            self.client = scheduler  # a Client
-        self.n_workers = max(1, sum(self.client.nthreads().values()))
+        from engine_model.cluster import connect
+
+        self.cluster = connect(scheduler, jobs)
+        self.n_workers = self.cluster.n_workers
 
     def run(self, tasks):
-        from distributed import as_completed
-
-        futures = self.client.map(run_task, tasks, pure=False)
-        try:
-            for f in as_completed(futures):
-                yield f.result()
-        finally:
-            self.client.cancel(futures)
+        yield from self.cluster.map(run_task, tasks)
 
     def close(self):
-        if self.cluster is not None:
-            self.client.close()
-            self.cluster.close()
+        self.cluster.close()
 
     def abort(self):
         self.close()
@@ -365,6 +381,18 @@ def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | Non
                          f" {', '.join(record['sensors'])}; choose another output or delete it")
 
 
+def dataset_units(data, units: Sequence[int] | None = None) -> list[int]:
+    """The units of the dataset ``data`` (those of ``units`` when given), without reading the
+    fleet: a parquet directory by unit lists them in its partition names; other layouts are
+    read for their keys only. A unit that is not there is an InputError naming it."""
+    p = Path(data)
+    parts = datasets.written_units(p) if p.is_dir() else []
+    if parts and (units is None or set(units) <= set(parts)):
+        return sorted(parts if units is None else {int(u) for u in units})
+    keys = datasets.read_dataset(data, units=units, columns=[])[0]
+    return sorted(int(u) for u in keys["unit"].unique())
+
+
 def _units_of(data, df_all, lengths):
     """Yield ``(unit, frame)`` one unit at a time (a path is read unit by unit, with the rows
     of the user's file as the index)."""
@@ -381,14 +409,17 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
                     options: dict | None = None, units: Sequence[int] | None = None,
                     jobs: int = 1, scheduler=None, out=None, keep_results: bool = True,
                     progress: Callable[[int, int], None] | None = None,
-                    check_data: bool = True) -> FleetRun:
+                    check_data: bool = True, effects: Sequence = ()) -> FleetRun:
     """Calibrate every unit of ``data`` (a dataset path, or a DataFrame with a ``unit``
     column) with ``method`` (module docstring). ``options`` go to the estimator's constructor;
     ``progress(done_units, total_units)`` is called as units finish. ``check_data`` compares
-    every unit with the model before estimating (:func:`unit_check.check_units`)."""
+    every unit with the model before estimating (:func:`unit_check.check_units`).
+    ``effects``: effects switched on in the model, held at their values (module
+    docstring)."""
     setup = setup or CalibrationSetup()
     options = dict(options or {})
     estimator_class(method)  # unknown method: clear error before any work
+    specs = effect_specs(effects)  # a bad specification: clear error before any work
     if jobs < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")
     t0 = time.perf_counter()
@@ -406,19 +437,21 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     else:
         source = str(data)
         meta = datasets.read_metadata(data)
-        keys = datasets.read_dataset(data, units=units, columns=[])[0]
-        lengths = keys.groupby("unit").size().to_dict()
+        lengths = dict.fromkeys(dataset_units(data, units))  # rows: counted by check_inputs
         df_all = None
-    lengths = {int(u): int(n) for u, n in lengths.items()}
+    lengths = {int(u): n for u, n in lengths.items()}
     setup = setup.for_dataset(meta)  # e.g. C-MAPSS's Ps30 out of the default sensors
     if not lengths:
         raise InputError(f"{source or 'data'}: no rows to calibrate")
 
     calib_meta = {"method": method, "options": options, "setup": setup_dict(setup),
                   "hyprog_version": datasets.hyprog_version()}
+    if specs:  # absent without effects: tables written before effects existed still resume
+        calib_meta["effects"] = specs
     run = FleetRun(method=method, setup=setup, options=options,
-                   out=None if out is None else str(out))
-    records = check_inputs(data, df_all, lengths, setup, source, check_data)
+                   out=None if out is None else str(out), effects=specs)
+    records = check_inputs(data, df_all, lengths, setup, source, check_data, specs)
+    lengths = {u: records[u]["rows"] for u in lengths}
     run.sensors = list(records[min(records)]["sensors"])
     if out is None:
         return _calibrate(run, source, df_all, meta, calib_meta, lengths, records, None, jobs,
@@ -438,19 +471,18 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
 
 
 def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
-                 check_data: bool = True) -> dict[int, dict]:
+                 check_data: bool = True, effects: Sequence[str] = ()) -> dict[int, dict]:
     """Read and check every unit once, before any output is touched (module docstring):
-    :func:`series.prepare_unit` and, with ``check_data``, :func:`unit_check.check_units`.
-    Returns unit -> its input record (:func:`fingerprint.input_record`)."""
+    :func:`series.prepare_unit` and, with ``check_data``, :func:`unit_check.check_units`
+    (against the model with ``effects``). Returns unit -> its input record
+    (:func:`fingerprint.input_record`)."""
     records, model = {}, None
     for u, frame in _units_of(data, df_all, lengths):
         series = prepare_unit(frame, setup, source)  # bad input: an error before any work
         records[u] = input_record(frame, u, series.sensors)
         if check_data:
             if model is None:
-                from .base import default_model
-
-                model = default_model()
+                model = worker_model(None, effects)
             check_units(model, series, setup, source)
     return records
 
@@ -472,7 +504,7 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
     tasks = []
     for group in plan_tasks(todo, method, n_workers) if todo else []:
         task = {"method": method, "setup": setup, "options": options, "units": group,
-                "threads": threads, "source": source}
+                "threads": threads, "source": source, "effects": run.effects}
         if df_all is None:
             task["path"] = source
         else:
@@ -514,4 +546,5 @@ def features_of(run: FleetRun) -> pd.DataFrame:
     return pd.concat([run.features[u] for u in sorted(run.features)], ignore_index=True)
 
 
-__all__ = ["FleetRun", "calibrate_fleet", "features_of", "plan_tasks", "run_task"]
+__all__ = ["FleetRun", "calibrate_fleet", "effect_specs", "features_of", "plan_tasks",
+           "run_task", "worker_model"]

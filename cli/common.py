@@ -72,17 +72,31 @@ def user_errors(source: object = None) -> Iterator[None]:
 #: another error; the entry point then still exits ``128 + signum`` (:func:`exit_code_after`).
 TERMINATED: list[int] = []
 
+#: The one line the entry point prints after a signal (:func:`signal_line`).
+SIGNAL_WORDS = {2: "interrupted", 15: "terminated"}
+
 
 def exit_code_after(default: int) -> int:
     """``128 + signum`` if a termination signal arrived, else ``default``."""
     return 128 + TERMINATED[0] if TERMINATED else default
 
 
+def signal_line() -> str | None:
+    """``error: interrupted`` (SIGINT) or ``error: terminated`` (SIGTERM) when a signal
+    ended the command, else None."""
+    if not TERMINATED:
+        return None
+    return error_line(SIGNAL_WORDS.get(TERMINATED[0], f"signal {TERMINATED[0]}"))
+
+
 @contextmanager
 def terminate_as_exit() -> Iterator[None]:
-    """Inside the block SIGTERM ends the command like Ctrl-C does (exit 143 after the
-    ``finally`` blocks ran: the output lock released, worker processes ended), instead of
-    killing the process where it stands. Only in the main thread (signals go there)."""
+    """Inside the block SIGINT (Ctrl-C) raises KeyboardInterrupt and SIGTERM SystemExit(143),
+    both recorded in :data:`TERMINATED`, so that the ``finally`` blocks run (the output lock
+    released, temporaries removed, worker processes ended) and the entry point ends with one
+    line (:func:`signal_line`) and exit ``128 + signum`` (130, 143) whatever the command did
+    with the exception (typer turns KeyboardInterrupt into a silent exit 130). Only in the
+    main thread (signals go there)."""
     import signal
     import threading
 
@@ -94,11 +108,18 @@ def terminate_as_exit() -> Iterator[None]:
         TERMINATED.append(signum)
         raise SystemExit(128 + signum)
 
-    previous = signal.signal(signal.SIGTERM, _exit)
+    def _interrupt(signum, frame):
+        TERMINATED.append(signum)
+        raise KeyboardInterrupt
+
+    TERMINATED.clear()  # a signal of an earlier command of this process is not this one's
+    previous = {sig: signal.signal(sig, fn)
+                for sig, fn in ((signal.SIGTERM, _exit), (signal.SIGINT, _interrupt))}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, fn in previous.items():
+            signal.signal(sig, fn)
 
 
 def get_model():

@@ -8,7 +8,8 @@ Exit codes (one rule for every command, README "Bad input")
   click's own usage errors (unknown option, missing argument, a value of the wrong type).
   Exactly one ``error: ...`` line on stderr, no traceback, no box.
 - 130: interrupted (Ctrl-C); 143: terminated (SIGTERM, turned into an exit so that locks
-  are released and worker processes ended, :func:`cli.common.terminate_as_exit`).
+  are released and worker processes ended, :func:`cli.common.terminate_as_exit`); both
+  print one line, ``error: interrupted`` or ``error: terminated``.
 
 The root group (:class:`HyprogGroup`) runs click in non-standalone mode and prints click's
 usage errors as that one line; :func:`cli.common.user_errors` does the same for the library's
@@ -25,7 +26,14 @@ from typer.core import TyperGroup
 from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
 from cli import discover as discover_cmd
 from cli import pipeline as pipeline_cmd
-from cli.common import EXIT_USAGE, TERMINATED, error_line, exit_code_after, terminate_as_exit
+from cli.common import (
+    EXIT_USAGE,
+    TERMINATED,
+    error_line,
+    exit_code_after,
+    signal_line,
+    terminate_as_exit,
+)
 
 
 def _click_class(name: str) -> type:
@@ -47,10 +55,14 @@ class HyprogGroup(TyperGroup):
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
              **extra):
+        stopped = True  # by a signal, unless the command returns by itself
         try:
-            with terminate_as_exit():  # SIGTERM: the finally blocks run (locks, workers)
+            with terminate_as_exit():  # SIGINT, SIGTERM: the finally blocks run (locks, workers)
                 rv = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
                                   standalone_mode=False, **extra)
+            # typer returns 130 for a KeyboardInterrupt; any other return is the command's own
+            # (a signal whose exception Python swallowed in a finalizer let it finish)
+            stopped = rv == 130
         except ClickException as e:
             if type(e).__name__ == "NoArgsIsHelpError":  # a bare group: its help
                 e.show()
@@ -61,13 +73,17 @@ class HyprogGroup(TyperGroup):
                 typer.echo(error_line(where + e.format_message()), err=True)
                 rv = EXIT_USAGE
         except Abort:
-            typer.echo("error: aborted", err=True)
+            if not TERMINATED:
+                typer.echo("error: aborted", err=True)
             rv = 130
-        except Exception:
+        except (Exception, SystemExit, KeyboardInterrupt):
             if not TERMINATED:
                 raise
-            rv = None  # SIGTERM's exit, turned into another error by an extension's call
-        rv = exit_code_after(rv if isinstance(rv, int) else 0)
+            rv = None  # the signal's exit (or another error an extension's call made of it)
+        if TERMINATED and stopped:  # Ctrl-C or SIGTERM ended the command: one line
+            typer.echo(signal_line(), err=True)
+            rv = exit_code_after(0)
+        rv = rv if isinstance(rv, int) else 0
         if not standalone_mode:
             return rv
         sys.exit(rv)

@@ -24,6 +24,14 @@ def pipeline(
     augment: Annotated[bool, typer.Option(
         "--augment", help="Add the effects that discover finds to the model and recalibrate "
         "before training.")] = False,
+    jobs: Annotated[int | None, typer.Option(
+        "--jobs", help="Worker processes of simulate, calibrate and features (or of the local "
+        "Dask cluster); overrides [run] jobs. Same numbers whatever the value.")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        "--scheduler", help="Run simulate, calibrate and features on a Dask cluster: its "
+        "scheduler address (tcp://host:port; the workers must read DATA and --out at the same "
+        "paths: a shared file system) or 'local'; overrides [run] scheduler. Same numbers as "
+        "without.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines and bars (they "
                                         "are drawn on a terminal only).")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
@@ -36,13 +44,18 @@ def pipeline(
     Example: hyprog pipeline --out results   (the committed sample fleet, about 5 minutes)
 
     Example: hyprog pipeline fleet/ --config pipeline.toml --augment --out results
+
+    Example: hyprog pipeline fleet/ --scheduler tcp://10.0.0.5:8786 --out /shared/results
     """
     from prognostics.pipeline import load_config, run_pipeline
+    from prognostics.pipeline.config import merge
 
     with user_errors():
         cfg = load_config(config)
         if augment:
             cfg["discover"]["augment"] = True
+        given = {k: v for k, v in (("jobs", jobs), ("scheduler", scheduler)) if v is not None}
+        cfg = merge(cfg, {"run": given}, "--jobs/--scheduler")
         err = console(stderr=True)
         quiet = quiet or as_json or not err.is_terminal  # progress on a terminal only
         log = (lambda msg: None) if quiet else (lambda msg: err.print(msg, soft_wrap=True))

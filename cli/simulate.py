@@ -30,12 +30,22 @@ def simulate(
         "--overwrite", help="Replace --out even when hyprog did not write it (a folder or "
         "file of other data); without it only a hyprog dataset of the same format is "
         "replaced.")] = False,
+    scheduler: Annotated[str | None, typer.Option(
+        "--scheduler", help="Simulate the units on a Dask cluster: its scheduler address "
+        "(tcp://host:port; the workers need hyprog installed, this process writes --out), "
+        "or 'local' for a local cluster of --jobs workers. Same result as without.")] = None,
+    jobs: Annotated[int, typer.Option(
+        "--jobs", help="Workers of the local Dask cluster (--scheduler local).")] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Simulate a fleet to failure and write it (atomically) with its metadata. An existing
-    --out is replaced only when hyprog wrote it (or with --overwrite).
+    --out is replaced only when hyprog wrote it (or with --overwrite). Each unit's random
+    draws depend only on the seed and the unit, so --units and --scheduler do not change a
+    unit's data.
 
     Example: hyprog simulate --preset tiny --out fleet --seed 0
+
+    Example: hyprog simulate --preset ds02 --out ds02 --scheduler tcp://10.0.0.5:8786
     """
     from engine_model import datasets, fleet
     from engine_model.effects import parse_effect_spec
@@ -46,6 +56,8 @@ def simulate(
             check_choice(record, "--record", RECORDS)
         if seed < 0:
             raise CliError(f"--seed {seed}: expected an integer >= 0")
+        if jobs < 1:
+            raise CliError(f"--jobs {jobs}: expected an integer >= 1")
         unit_list = parse_units(units)
         effects = [parse_effect_spec(e) for e in (effect or [])]
         preset_obj = fleet.get_preset(preset)
@@ -55,7 +67,7 @@ def simulate(
         out = datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
         with datasets.output_lock(out):  # one writer per output
             path, report = _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects,
-                                record, fmt, overwrite, n_units, as_json)
+                                record, fmt, overwrite, n_units, as_json, scheduler, jobs)
     rep = {"out": str(path), "rows": report.total_rows, "seconds": round(report.seconds, 2),
            "units": {str(u): {"rows": report.rows[u], "eol": report.eol[u], "t_s": report.t_s[u],
                               "dropped": report.dropped[u]} for u in report.rows}}
@@ -67,15 +79,15 @@ def simulate(
 
 
 def _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects, record, fmt,
-         overwrite, n_units, as_json):
-    """The simulation itself, with a progress bar on stderr in text mode."""
+         overwrite, n_units, as_json, scheduler, jobs):
+    """The simulation itself, with a progress bar on a terminal's stderr in text mode."""
+    kw = {"overwrite": overwrite, "scheduler": scheduler, "jobs": jobs}
     if as_json:
-        return fleet.simulate(preset_obj, out, unit_list, rate, seed, effects, record, fmt,
-                              overwrite=overwrite)
+        return fleet.simulate(preset_obj, out, unit_list, rate, seed, effects, record, fmt, **kw)
     from rich.progress import Progress
 
-    with Progress(console=console(stderr=True), transient=True) as bar:
+    err = console(stderr=True)
+    with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
         task = bar.add_task(f"simulating {preset} ({n_units} units)", total=n_units)
         return fleet.simulate(preset_obj, out, unit_list, rate, seed, effects, record, fmt,
-                              progress=lambda k, n, rows: bar.update(task, completed=k),
-                              overwrite=overwrite)
+                              progress=lambda k, n, rows: bar.update(task, completed=k), **kw)

@@ -22,6 +22,19 @@ undeclared effect are made).
 
 A steady-state point that does not converge is never written as if valid: the sample is
 dropped and counted in the returned :class:`SimulationReport` (and a warning is issued).
+
+Memory: with ``out`` the units are written one at a time as they are simulated (parquet), so
+the fleet is never in memory at once (the h5 format and ``out=None`` do hold it all).
+
+Dask: ``scheduler`` (an address, ``"local"`` or a ``distributed.Client``,
+:mod:`engine_model.cluster`) simulates one unit per task on the cluster's workers (each builds
+its own single-threaded model of the truth once); the client writes each unit as it comes back
+with the same writer. A unit's draws depend only on ``(seed, unit)``, so the fleet is the one
+simulated locally, byte for byte.
+
+Interruption: the parquet directory (or h5 file) appears under its name only when complete. A
+killed run (SIGKILL) leaves a hidden temporary next to it; the next run into the same ``out``
+deletes it once its writer is gone.
 """
 
 from __future__ import annotations
@@ -236,26 +249,89 @@ def check_rate(rate_hz) -> float:
     return rate
 
 
+# ------------------------------------------------------------------------------ Dask tasks
+def truth_model(effect_specs: Sequence[str] = (), threads: int | None = 1):
+    """The truth model of this process for the steady effects among ``effect_specs``
+    (specification strings), built once per process (:func:`cluster.process_model`; a Dask
+    worker's is single-threaded)."""
+    from .cluster import process_model
+    from .effects import parse_effect_spec, split_series_effects
+
+    steady, _ = split_series_effects([parse_effect_spec(e) for e in effect_specs])
+    return process_model([e.spec() for e in steady], threads)
+
+
+def simulate_unit_task(task: dict) -> tuple:
+    """One unit of a fleet on a worker: ``task`` holds the unit's :class:`UnitSpec`, the seed,
+    rate, record, noise scale, wear parameters and the effects as specifications; returns
+    ``(unit, DataFrame, info)`` exactly as :func:`simulate_unit` in the client would."""
+    import warnings as _warnings
+
+    from .effects import parse_effect_spec, split_series_effects
+
+    truth = truth_model(task["effects"])
+    _, series = split_series_effects([parse_effect_spec(e) for e in task["effects"]])
+    with _warnings.catch_warnings():  # the client warns about dropped samples
+        _warnings.simplefilter("ignore")
+        df, info = simulate_unit(truth, task["spec"], task["seed"], task["rate"],
+                                 task["record"], task["noise_scale"],
+                                 np.asarray(truth.p_default, float), series,
+                                 task["wear_params"])
+    return task["spec"].unit, df, info
+
+
+def remove_stale_output(out: Path) -> int:
+    """Delete the hidden temporaries of ``out`` (``.<name>.tmp-*`` next to it) that a killed
+    writer left (only those whose writer is gone); returns how many."""
+    from .datasets.atomic import remove_path, writer_gone
+
+    stale = [q for q in out.parent.glob(f".{out.name}.tmp-*") if writer_gone(q.name)]
+    for q in stale:
+        remove_path(q)
+    return len(stale)
+
+
 def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
              units: Sequence[int] | None = None, rate_hz: float | None = None, seed: int = 0,
              effects: Sequence = (), record: str | None = None, fmt: str = "parquet",
              noise_scale: float = 1.0, model=None,
-             progress: Callable[[int, int, int], None] | None = None, overwrite: bool = False):
+             progress: Callable[[int, int, int], None] | None = None, overwrite: bool = False,
+             scheduler=None, jobs: int = 1):
     """Simulate a fleet preset. With ``out`` the fleet is written (parquet streamed unit by
     unit, or N-CMAPSS h5) and ``(path, report)`` is returned; without, ``(df, metadata,
     report)``. ``effects``: :class:`effects.Effect` instances switched on in the truth. An
     existing ``out`` is replaced only when hyprog wrote it, or with ``overwrite``
-    (:mod:`engine_model.datasets.ownership`)."""
+    (:mod:`engine_model.datasets.ownership`). ``scheduler``: simulate the units on a Dask
+    cluster (module docstring; ``jobs`` workers for ``"local"``); ``model`` is used only
+    without it."""
+    from .cluster import process_model
     from .effects import split_series_effects
-    from .model import EngineModel
 
     p = get_preset(preset) if isinstance(preset, str) else preset
     specs = select_units(p, units)
     rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
     rec = record or p.record
     steady, series = split_series_effects(effects)
-    truth = model or EngineModel(effects=steady)
-    meta = {
+    if scheduler is not None:
+        return _simulate_on(scheduler, jobs, p, specs, rate, rec, seed, effects, noise_scale,
+                            out, fmt, progress, overwrite)
+    truth = model or process_model([e.spec() for e in steady])
+    p_def = np.asarray(truth.p_default, float)
+
+    def units_done():
+        for s in specs:
+            df, info = simulate_unit(truth, s, seed, rate, rec, noise_scale, p_def, series,
+                                     p.wear_params)
+            yield s.unit, df, info
+
+    meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
+    return _write(units_done(), specs, meta, out, fmt, progress, overwrite)
+
+
+def fleet_metadata(p: Preset, specs, rate: float, rec: str, seed: int, effects,
+                   noise_scale: float) -> dict:
+    """The dataset metadata of a simulated fleet (module docstring)."""
+    return {
         "preset": p.name, "seed": int(seed), "sample_rate_hz": rate, "record": rec,
         "effects": [e.to_dict() for e in effects],
         "dev_units": [s.unit for s in specs if s.split == "dev"],
@@ -265,38 +341,79 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
         "noise_scale": float(noise_scale),
         "wear_params": list(p.wear_params) if p.wear_params is not None else list(THETA_NAMES),
     }
-    report = SimulationReport()
-    t0 = time.perf_counter()
-    p_def = np.asarray(truth.p_default, float)
 
-    def run():
-        for k, s in enumerate(specs):
-            df, info = simulate_unit(truth, s, seed, rate, rec, noise_scale, p_def, series,
-                                     p.wear_params)
-            report.rows[s.unit] = len(df)
-            report.dropped[s.unit] = info["dropped"]
-            report.eol[s.unit] = info["eol"]
-            report.t_s[s.unit] = info["t_s"]
-            if progress is not None:
-                progress(k + 1, len(specs), len(df))
-            yield df
 
+def _simulate_on(scheduler, jobs, p, specs, rate, rec, seed, effects, noise_scale, out, fmt,
+                 progress, overwrite):
+    """:func:`simulate` with one task per unit on a Dask cluster."""
+    from .cluster import connect
+
+    names = [e.spec() for e in effects]
+    tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
+              "noise_scale": float(noise_scale), "wear_params": p.wear_params,
+              "effects": names} for s in specs]
+    meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
+    if out is not None:
+        _check_out(Path(out), fmt, overwrite)  # before a cluster is started
+    def results(cluster):
+        for unit, df, info in cluster.map(simulate_unit_task, tasks):
+            if info["dropped"]:  # the worker's warning stays there: say it here
+                warnings.warn(f"unit {unit}: {info['dropped']} samples did not converge and "
+                              "were dropped", stacklevel=4)
+            yield unit, df, info
+
+    with connect(scheduler, jobs) as cluster:
+        return _write(results(cluster), specs, meta, out, fmt, progress, overwrite)
+
+
+def _check_out(out: Path, fmt: str, overwrite: bool) -> None:
     from . import datasets
 
+    if fmt not in ("parquet", "h5"):
+        raise InputError(f"--format {fmt}: expected parquet or h5")
+    datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
+
+
+def _write(results, specs, meta, out, fmt, progress, overwrite):
+    """Write the units ``results`` yields (``(unit, df, info)``, in any order) to ``out``
+    (parquet: each as it comes; h5 and ``out=None``: the fleet in the preset's order)."""
+    from . import datasets
+
+    report = SimulationReport()
+    t0 = time.perf_counter()
+    order = {s.unit: k for k, s in enumerate(specs)}
+
+    def run():
+        for k, (unit, df, info) in enumerate(results):
+            report.rows[unit] = len(df)
+            report.dropped[unit] = info["dropped"]
+            report.eol[unit] = info["eol"]
+            report.t_s[unit] = info["t_s"]
+            if progress is not None:
+                progress(k + 1, len(specs), len(df))
+            yield unit, df
+
+    def in_order():
+        return pd.concat([df for _, df in sorted(run(), key=lambda r: order[r[0]])],
+                         ignore_index=True)
+
+    def finish(rep):
+        rep.seconds = time.perf_counter() - t0
+        for d in ("rows", "dropped", "eol", "t_s"):  # the preset's order, whatever came first
+            setattr(rep, d, {u: getattr(rep, d)[u] for u in sorted(order, key=order.get)})
+        return rep
+
     if out is None:
-        df = pd.concat(list(run()), ignore_index=True)
-        report.seconds = time.perf_counter() - t0
-        return df, meta, report
+        df = in_order()
+        return df, meta, finish(report)
     out = Path(out)
+    _check_out(out, fmt, overwrite)
+    remove_stale_output(out)
     if fmt == "parquet":
         with datasets.parquet_unit_writer(out, meta, overwrite=overwrite) as write_unit:
-            for df in run():
+            for _, df in run():
                 write_unit(df)
-    elif fmt == "h5":
-        datasets.check_output(out, directory=False, overwrite=overwrite)  # before the work
-        df = pd.concat(list(run()), ignore_index=True)
-        datasets.write_ncmapss_h5(df, out, meta, overwrite=overwrite)
     else:
-        raise InputError(f"--format {fmt}: expected parquet or h5")
-    report.seconds = time.perf_counter() - t0
-    return out, report
+        df = in_order()
+        datasets.write_ncmapss_h5(df, out, meta, overwrite=overwrite)
+    return out, finish(report)

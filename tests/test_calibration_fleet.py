@@ -1,12 +1,13 @@
-"""Fleet calibration: parallel workers and a local Dask cluster give the numbers of a serial
-run, resumable feature tables, the comparison against truth and the CRB, and the CLI."""
+"""Fleet calibration: task planning, effects held in the model, resumable feature tables,
+the comparison against truth and the CRB, and the CLI. That worker processes and a Dask cluster
+give the serial run's files byte for byte is tested through the pipeline
+(tests/test_pipeline_parallel.py)."""
 
 from __future__ import annotations
 
 import json
 
 import numpy as np
-import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -41,13 +42,6 @@ def serial(small):
     return calibrate_fleet(path, "ukf", SETUP)
 
 
-def _same(run_a, run_b):
-    assert sorted(run_a.results) == sorted(run_b.results)
-    for u in run_a.results:
-        pd.testing.assert_frame_equal(run_a.features[u], run_b.features[u], rtol=1e-9,
-                                      atol=1e-12)
-
-
 def test_plan_balances_lockstep_groups_and_splits_windowed_methods():
     lengths = {1: 100, 2: 90, 3: 60, 4: 50, 5: 40}
     groups = plan_tasks(lengths, "ukf", 2)
@@ -55,6 +49,52 @@ def test_plan_balances_lockstep_groups_and_splits_windowed_methods():
     # longest-processing-time first: 100+50+40 / 90+60
     assert loads == [150, 190] and sorted(u for g in groups for u in g) == [1, 2, 3, 4, 5]
     assert plan_tasks(lengths, "mhe", 2) == [[1], [2], [3], [4], [5]]
+    # a lockstep group is cut so that no task holds more than max_rows samples (one unit
+    # at least): memory bounded whatever the fleet
+    assert plan_tasks(lengths, "ukf", 1, max_rows=150) == [[1], [2, 3], [4, 5]]
+    assert plan_tasks({1: 500, 2: 10}, "ekf", 1, max_rows=100) == [[1], [2]]
+
+
+def test_units_are_listed_without_reading_the_fleet(small):
+    from calibration.fleet import dataset_units
+    from engine_model import InputError
+
+    path, _ = small
+    assert dataset_units(path) == [1, 2, 3] and dataset_units(path, [3, 1]) == [1, 3]
+    with pytest.raises(InputError, match="9"):
+        dataset_units(path, [1, 9])
+
+
+def test_effects_are_held_in_the_model_and_in_the_resume_settings(small, tmp_path, serial):
+    """``effects=``: the model with a customer bleed held at f0 = 0.02 explains the data
+    otherwise than the base model (other theta_hat); a spec string and an Effect give the
+    same canonical entry in the metadata; resuming with other effects, or none, is refused
+    naming them; a bad specification fails before anything is written."""
+    from engine_model import InputError
+    from engine_model.effects import parse_effect_spec
+
+    path, _ = small
+    out = tmp_path / "features"
+    bleed = "customer_bleed:f0=0.02"
+    run = calibrate_fleet(path, "ukf", SETUP, units=[1], out=out, effects=[bleed])
+    spec = parse_effect_spec(bleed).spec()
+    assert run.effects == [spec]
+    assert datasets.read_metadata(out)["calibration"]["effects"] == [spec]
+    with_bleed = run.results[1].theta_hat.to_numpy()
+    base = serial.results[1].theta_hat.to_numpy()
+    assert np.abs(with_bleed - base).max() > 1e-4  # the bleed is in the model
+    again = calibrate_fleet(path, "ukf", SETUP, units=[1], out=out,
+                            effects=[parse_effect_spec(bleed)])
+    assert again.skipped == [1] and not again.units
+    with pytest.raises(InputError, match="unit 1 was calibrated with other settings.*effects"):
+        calibrate_fleet(path, "ukf", SETUP, units=[2], out=out)
+    with pytest.raises(InputError, match="effects"):
+        calibrate_fleet(path, "ukf", SETUP, units=[2], out=out,
+                        effects=["customer_bleed:f0=0.01"])
+    with pytest.raises(InputError, match="no_such_effect"):
+        calibrate_fleet(path, "ukf", SETUP, units=[2], out=tmp_path / "other",
+                        effects=["no_such_effect"])
+    assert datasets.written_units(out) == [1] and not (tmp_path / "other").exists()
 
 
 def test_serial_run_equals_the_estimator_on_each_unit(serial, small):
@@ -71,19 +111,6 @@ def test_serial_run_equals_the_estimator_on_each_unit(serial, small):
               *(q + "_hat_std" for q in PAPER_THETA), *df.columns):
         assert c in feats.columns
     assert serial.samples == len(df) and serial.samples_per_second > 0
-
-
-def test_worker_processes_give_the_serial_numbers(serial, small):
-    path, _ = small
-    _same(serial, calibrate_fleet(path, "ukf", SETUP, jobs=2))
-
-
-def test_local_dask_cluster_gives_the_serial_numbers(serial, small):
-    pytest.importorskip("distributed")
-    path, _ = small
-    run = calibrate_fleet(path, "ukf", SETUP, jobs=2, scheduler="local")
-    assert run.workers == 2
-    _same(serial, run)
 
 
 def test_unreachable_scheduler_is_a_clear_error(small):

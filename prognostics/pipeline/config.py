@@ -5,11 +5,22 @@ default. A key or table this module does not know is an error naming it and the 
 misspelt option would otherwise be silently ignored). Values are type-checked; TOML has no
 null, so an option whose default is "none" (e.g. ``train.max_rul``) is left out to keep it.
 
+The ``run`` table says how the work is spread, not what is computed: every result is the same
+whatever its values (same seeds per unit), so it is in no stage's fingerprint (a resumed run
+with other workers skips what is done) and not in ``metrics.json``
+(:data:`EXECUTION_TABLES`).
+
 ===============  ===================  =========================================================
 table            key                  meaning [default]
 ===============  ===================  =========================================================
 ``pipeline``     ``seed``             seed of every random draw (discover, validation flights,
                                       network initialisation and batch order) [0]
+``run``          ``jobs``             worker processes of simulate, calibrate and features
+                                      (with ``scheduler = "local"``: the local Dask cluster's
+                                      workers) [1]
+                 ``scheduler``        send simulate, calibrate and features to a Dask cluster:
+                                      its address (``tcp://host:8786``) or ``"local"``
+                                      [none: this machine]
 ``data``         ``units``            units of DATA to use [every unit]
                  ``dev_units``        development units [the metadata's ``dev_units``, else
                                       every unit but the last]
@@ -32,7 +43,6 @@ table            key                  meaning [default]
                                       fleet's ten-flight lives need it, README]
                  ``noise_scale``      multiplier of the documented sensor noise [1.0]
                  ``prior_std``        prior std of theta [0.02]
-                 ``jobs``             worker processes [1]
 ``discover``     ``enabled``          run the discrepancy loop [true]
                  ``method``           its warm-start estimator [ukf]
                  ``candidates``       effects to test [the library's steady and sensor effects]
@@ -75,14 +85,14 @@ _NAMES = "names"  # a list of strings
 # table -> key -> (type, default); default None means "not given" (the library's default)
 SCHEMA: dict[str, dict[str, tuple]] = {
     "pipeline": {"seed": (_INT, 0)},
+    "run": {"jobs": (_INT, 1), "scheduler": (_STR, None)},
     "data": {"units": (_UNITS, None), "dev_units": (_UNITS, None),
              "test_units": (_UNITS, None), "conformal_units": (_UNITS, [])},
     "simulate": {"preset": (_STR, ""), "rate_hz": (_FLOAT, None), "seed": (_INT, 0),
                  "effects": (_NAMES, [])},
     "calibrate": {"method": (_STR, "ukf"), "params": (_NAMES, None),
                   "sensors": (_NAMES, None), "drift": (_FLOAT, 0.01),
-                  "noise_scale": (_FLOAT, 1.0), "prior_std": (_FLOAT, 0.02),
-                  "jobs": (_INT, 1)},
+                  "noise_scale": (_FLOAT, 1.0), "prior_std": (_FLOAT, 0.02)},
     "discover": {"enabled": (_BOOL, True), "method": (_STR, "ukf"),
                  "candidates": (_NAMES, None), "alpha": (_FLOAT, 0.01),
                  "max_effects": (_INT, 3), "drift": ((_STR, _FLOAT), "mle"),
@@ -93,6 +103,21 @@ SCHEMA: dict[str, dict[str, tuple]] = {
               "lr": (_FLOAT, 1e-3), "patience": (_INT, 5), "alpha": (_FLOAT, 0.1),
               "device": (_STR, "cpu")},
 }
+
+
+#: Tables that say how the work runs, not what it computes (module docstring).
+EXECUTION_TABLES = ("run",)
+
+
+def results_config(config: dict) -> dict:
+    """``config`` without :data:`EXECUTION_TABLES`: what determines the results."""
+    return {t: v for t, v in config.items() if t not in EXECUTION_TABLES}
+
+
+def check_run(config: dict, source: str = "config") -> None:
+    """The ``run`` table's values are usable."""
+    if config["run"]["jobs"] < 1:
+        raise InputError(f"{source}: [run] jobs must be >= 1, got {config['run']['jobs']}")
 
 
 def defaults() -> dict:
@@ -150,6 +175,7 @@ def merge(config: dict, given: dict, source: str = "config") -> dict:
                                  f"{', '.join(SCHEMA[table])}")
             kind = SCHEMA[table][key][0]
             out[table][key] = _check_value(f"{source}: [{table}] {key}", kind, value)
+    check_run(out, source)
     return out
 
 

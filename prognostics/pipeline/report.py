@@ -11,7 +11,9 @@ the seed.
 
 ``metrics.json`` holds every number of the report except the timings and the paths, so two runs
 with the same configuration, data and seed give identical files (the timings are in
-``report.md`` and ``run.json``).
+``report.md`` and ``run.json``); its ``config`` leaves out the ``[run]`` table (workers, Dask
+scheduler), which changes no number, so a run on 2 workers or a cluster writes the file a
+serial run writes.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from engine_model.channels import THETA_NAMES
 from ..metrics import per_cycle
 from ..outputs import write_json, write_text
 from . import document
-from .config import to_toml
+from .config import results_config, to_toml
 
 FIGURES = "figures"
 PACKAGES = ("numpy", "pandas", "scipy", "torch", "casadi", "pyarrow", "matplotlib")
@@ -266,7 +268,8 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     write_text(out / "report.md", document.markdown(blocks, out))
     write_text(out / "report.html", document.html_page(blocks, "hyprog pipeline report"))
     metrics = {
-        "seed": seed, "config": config, "versions": vers, "data": s["data"]["label"],
+        "seed": seed, "config": results_config(config), "versions": vers,
+        "data": s["data"]["label"],
         "fleet": {k: fleet[k] for k in ("units", "totals", "sample_rate_hz", "effects")},
         "split": split,
         "calibration": {"method": s["calibrate"]["method"], "params": s["calibrate"]["params"],

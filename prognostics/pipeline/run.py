@@ -21,6 +21,8 @@ report      every stage above
 ==========  ===================================================================
 
 So a changed option reruns its stage and the stages that read its output, and only those.
+The ``[run]`` table (workers, Dask scheduler) is in no fingerprint: it does not change a
+result, so a run resumed with other workers or on a cluster skips what is done.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from engine_model.validation import InputError
 
 from ..outputs import write_json
 from . import report, stages, state
+from .config import results_config
 from .state import data_fingerprint, fingerprint
 
 MARK = "pipeline.json"
@@ -105,6 +108,8 @@ def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
         except InputError:
             tidy_after_refusal(out, created)
             raise
+        finally:
+            ctx.close()
 
 
 def tidy_after_refusal(out: Path, created: bool) -> None:
@@ -177,7 +182,7 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
               summaries["features"], summaries["train"])
     rin = {"calibrate": cal["fp"], "features": feats["fp"], "train": tr["fp"],
            "evaluate": ev["fp"], "discover": None if disc is None else disc["fp"]}
-    step("report", {"config": cfg}, rin,
+    step("report", {"config": results_config(cfg)}, rin,
          lambda c, folder: report.write(out, cfg, summaries, dict(timings)))
     result = {"out": str(out), "data": label, "stages": timings,
               "seconds": sum(v["seconds"] for v in timings.values()),

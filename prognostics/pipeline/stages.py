@@ -9,7 +9,8 @@ calibrate      theta_hat of every unit and the paper's feature table
                (:func:`calibration.fleet.calibrate_fleet`; resumes unit by unit)
 discover       the model-discrepancy loop and its report (:mod:`calibration.discrepancy`)
 features       the table the networks learn from: the calibrated one, or with ``augment`` and
-               effects found, a recalibration with the found effects in the model; its
+               effects found, a recalibration with the found effects in the model, held at
+               their values (``calibrate_fleet(effects=...)``: resumable, checked); its
                development / test / conformal split and the input columns of every input set
                are resolved and checked here, before any training
 train          one model per input set (:func:`prognostics.training.fit`, saved with
@@ -18,6 +19,9 @@ evaluate       metrics per test unit and predictions (:meth:`RulModel.evaluate`)
 =============  ==============================================================================
 
 Every stage writes only inside its own folder (:mod:`.state`), through atomic writers.
+simulate, calibrate and features stream the fleet unit by unit (never the whole fleet in
+memory) and run on ``[run] jobs`` workers or the Dask cluster of ``[run] scheduler``
+(``Context.cluster``), with the same result.
 """
 
 from __future__ import annotations
@@ -44,6 +48,32 @@ class Context:
     quiet: bool = False
     log: Callable[[str], None] = field(default=lambda msg: None)
     source: str = "data"
+    _cluster: object = None
+
+    @property
+    def jobs(self) -> int:
+        return self.config["run"]["jobs"]
+
+    @property
+    def cluster(self):
+        """The Dask cluster of ``[run] scheduler`` (:func:`engine_model.cluster.connect`),
+        connected on first use (a resumed run whose stages are done starts none); None
+        without a scheduler."""
+        scheduler = self.config["run"]["scheduler"]
+        if scheduler is None:
+            return None
+        if self._cluster is None:
+            from engine_model.cluster import connect
+
+            self.log(f"  Dask: {scheduler}")
+            self._cluster = connect(scheduler, self.jobs)
+        return self._cluster
+
+    def close(self) -> None:
+        """Close the Dask cluster if this run started one."""
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
 
     def rel(self, path: Path) -> str:
         """``path`` relative to the output folder (markers stay valid if it is moved)."""
@@ -137,24 +167,31 @@ def simulate(ctx: Context, folder: Path) -> dict:
     effects = [parse_effect_spec(e) for e in c["effects"]]
     t0 = time.perf_counter()
     path, rep = run(c["preset"], out=folder / "fleet", units=ctx.config["data"]["units"],
-                    rate_hz=c["rate_hz"], seed=c["seed"], effects=effects)
+                    rate_hz=c["rate_hz"], seed=c["seed"], effects=effects,
+                    scheduler=ctx.cluster, jobs=ctx.jobs)
     return {"data": ctx.rel(path), "preset": c["preset"], "seconds": time.perf_counter() - t0,
             "rows": rep.total_rows, "dropped": int(sum(rep.dropped.values()))}
 
 
-def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
-    """theta_hat of every unit into ``folder/features`` (a rerun resumes unit by unit)."""
+def _calibrate_into(ctx: Context, table: Path, data: Path, effects=()):
+    """:func:`calibration.fleet.calibrate_fleet` of every unit into ``table`` (resumes unit by
+    unit; ``[run]`` workers or Dask cluster), with ``effects`` in the model."""
     from calibration.fleet import calibrate_fleet
 
     c = ctx.config["calibrate"]
-    setup = calibration_setup(ctx.config)
     progress = None
     if not ctx.quiet:
         def progress(done, total):
             ctx.log(f"  calibrated {done} of {total} unit(s)")
-    res = calibrate_fleet(data, c["method"], setup, {}, ctx.config["data"]["units"],
-                          c["jobs"], None, folder / "features", keep_results=False,
-                          progress=progress)
+    return calibrate_fleet(data, c["method"], calibration_setup(ctx.config), {},
+                           ctx.config["data"]["units"], ctx.jobs, ctx.cluster, table,
+                           keep_results=False, progress=progress, effects=effects)
+
+
+def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
+    """theta_hat of every unit into ``folder/features`` (a rerun resumes unit by unit)."""
+    c = ctx.config["calibrate"]
+    res = _calibrate_into(ctx, folder / "features", data)
     return _jsonable({"table": ctx.rel(folder / "features"), "method": c["method"],
                       "params": list(res.setup.params), "sensors": list(res.sensors),
                       "samples": res.samples, "seconds": res.seconds,
@@ -200,35 +237,10 @@ def discover(ctx: Context, folder: Path, data: Path) -> dict:
                       "seconds": r["diagnostics"]["seconds"]})
 
 
-def _recalibrate(ctx: Context, folder: Path, data: Path, specs: list[str]) -> Path:
-    """Every unit calibrated again with the found effects in the engine model."""
-    from calibration import estimator_class
-    from calibration.fleet import setup_dict, unit_frames
-    from engine_model import EngineModel, datasets
-    from engine_model.effects import parse_effect_spec
-
-    c = ctx.config["calibrate"]
-    table = folder / "features"
-    meta = datasets.read_metadata(data)
-    setup = calibration_setup(ctx.config).for_dataset(meta)
-    model = EngineModel(effects=[parse_effect_spec(s) for s in specs])
-    est = estimator_class(c["method"])(model=model)
-    df, _ = datasets.read_dataset(data, units=ctx.config["data"]["units"], source_rows=True)
-    frames = unit_frames(df)
-    units = sorted(frames)
-    results = est.estimate_many([frames[u] for u in units], setup, str(data))
-    calib = {"method": c["method"], "options": {}, "setup": setup_dict(setup),
-             "effects": list(specs), "hyprog_version": datasets.hyprog_version()}
-    for u, r in zip(units, results, strict=True):
-        datasets.write_unit_part(r.to_features(frames[u]), table,
-                                 {**meta, "calibration": calib})
-    return table
-
-
 def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
              discovered: dict | None) -> dict:
     """The feature table to learn from, its split and the inputs of every input set."""
-    from engine_model.datasets import read_columns, read_dataset, read_metadata
+    from engine_model.datasets import read_columns, read_metadata
 
     from ..features import resolve_inputs
 
@@ -236,16 +248,28 @@ def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
     if ctx.config["discover"]["augment"] and discovered and discovered["found"]:
         specs = [f["spec"] for f in discovered["found"]]
         ctx.log(f"  recalibrating with {', '.join(specs)}")
-        table = _recalibrate(ctx, folder, data, specs)
+        table = folder / "features"
+        _calibrate_into(ctx, table, data, specs)  # the found effects held at their values
     else:
         table = ctx.path(calibrated["table"])
     meta = read_metadata(table)
     columns = read_columns(table)
-    keys = read_dataset(table, columns=[])[0]
-    split = split_units(keys["unit"].unique().tolist(), meta, ctx.config["data"], str(table))
+    rows = unit_rows(table)
+    split = split_units(list(rows), meta, ctx.config["data"], str(table))
     inputs = {s: resolve_inputs(s, columns, str(table)) for s in ctx.config["train"]["inputs"]}
     return _jsonable({"table": ctx.rel(table), "effects": specs, "split": split,
-                      "inputs": inputs, "rows": int(len(keys))})
+                      "inputs": inputs, "rows": int(sum(rows.values()))})
+
+
+def unit_rows(table: Path) -> dict[int, int]:
+    """unit -> rows of a feature table (a parquet directory by unit, as calibrate writes it),
+    from the part files' footers: no column of the fleet is read."""
+    import pyarrow.parquet as pq
+
+    from engine_model.datasets import PARQUET_PART, written_units
+
+    return {u: pq.read_metadata(table / f"unit={u}" / PARQUET_PART).num_rows
+            for u in written_units(table)}
 
 
 def train(ctx: Context, folder: Path, feats: dict) -> dict:

@@ -1,0 +1,172 @@
+"""Interrupted commands (issue 15), through the real console entry point in a subprocess:
+
+- SIGINT (Ctrl-C) and SIGTERM end a command with one line, ``error: interrupted`` /
+  ``error: terminated``, exit 130 / 143, and leave neither the output, a temporary nor the lock;
+- a SIGKILL of ``hyprog simulate`` or ``hyprog calibrate`` in the middle of its run (after its
+  first unit was written, before the last) leaves no half-written final file (a hidden
+  temporary at most), and the rerun gives the files of an uninterrupted run byte for byte.
+
+The uninterrupted runs are the library's, in this process (the shared compiled model), and so
+is the calibration's rerun, so each test costs one or two command starts. Data: the tiny
+preset's units 3 and 4 (simulate, a few seconds each) and a cut of the committed tiny fleet
+(calibrate): unit 3's first two cycles and unit 4's first five, so that with ``--jobs 2`` unit
+3's task ends well before unit 4's (the kill lands between them).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from engine_model import datasets
+from engine_model.datasets.lock import lock_path
+from tests.conftest import REPO
+
+TINY = REPO / "data_samples" / "tiny"
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+DRIFT = "0.01"  # the tiny fleet's fast wear (README)
+
+
+def start(*args) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "cli.main", *map(str, args)], cwd=REPO,
+                            env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def hyprog(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cli.main", *map(str, args)], cwd=REPO,
+                          env=ENV, capture_output=True, text=True)
+
+
+def wait_for(proc: subprocess.Popen, ready, what: str, timeout: float = 240) -> None:
+    """Poll ``ready()`` every 20 ms until true; fail if the process ended first."""
+    deadline = time.monotonic() + timeout
+    while not ready():
+        assert proc.poll() is None, (what, proc.returncode, proc.stderr.read())
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def signal_and_wait(proc: subprocess.Popen, sig: int) -> tuple[int, str]:
+    try:
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, err
+
+
+def hidden(folder: Path, name: str) -> list[Path]:
+    """The hidden temporaries of ``name`` in ``folder``."""
+    return sorted(folder.glob(f".{name}.tmp-*"))
+
+
+def files(root: Path) -> dict[str, bytes]:
+    """Every visible file under ``root`` (relative path -> bytes)."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and not any(s.startswith(".") for s in p.relative_to(root).parts)}
+
+
+# ----------------------------------------------------------------------------- simulate
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    """The uninterrupted simulation of the tiny preset's units 3 and 4 (seed 0)."""
+    from engine_model.fleet import simulate
+
+    out = tmp_path_factory.mktemp("sim") / "fleet"
+    simulate("tiny", out=out, units=[3, 4], seed=0)
+    return out
+
+
+def _first_unit_in_temporary(folder: Path, name: str):
+    def ready():
+        return any((t / "unit=3").is_dir() or (t / "unit=4").is_dir()
+                   for t in hidden(folder, name))
+    return ready
+
+
+def test_sigkill_of_simulate_leaves_no_fleet_and_the_rerun_is_identical(tmp_path, simulated):
+    out = tmp_path / "fleet"
+    p = start("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json")
+    wait_for(p, _first_unit_in_temporary(tmp_path, "fleet"), "the first simulated unit")
+    code, _ = signal_and_wait(p, signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    assert not out.exists()  # the fleet appears only complete
+    assert hidden(tmp_path, "fleet")  # what the killed writer left: hidden, never read
+    r = hyprog("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    assert not hidden(tmp_path, "fleet")  # the rerun removed the dead writer's temporary
+    assert not lock_path(out).exists()
+    assert files(out) == files(simulated)
+
+
+def test_sigint_of_simulate_is_one_line_and_leaves_nothing(tmp_path):
+    out = tmp_path / "fleet"
+    p = start("simulate", "--preset", "tiny", "--units", "3,4", "--out", out)
+    wait_for(p, _first_unit_in_temporary(tmp_path, "fleet"), "the first simulated unit")
+    code, err = signal_and_wait(p, signal.SIGINT)
+    assert code == 130, err
+    assert err.strip() == "error: interrupted", err
+    assert sorted(tmp_path.iterdir()) == []  # no fleet, no temporary, no lock
+
+
+# ----------------------------------------------------------------------------- calibrate
+@pytest.fixture(scope="module")
+def cut(tmp_path_factory):
+    """Unit 3 (first two cycles) and unit 4 (first five) of the tiny fleet, and their
+    uninterrupted calibration (``hyprog calibrate --drift 0.01``'s settings)."""
+    from calibration import CalibrationSetup
+    from calibration.fleet import calibrate_fleet
+
+    df, meta = datasets.read_dataset(TINY, units=[3, 4])
+    keep = ((df["unit"] == 3) & (df["cycle"] <= 2)) | ((df["unit"] == 4) & (df["cycle"] <= 5))
+    root = tmp_path_factory.mktemp("cut")
+    data = root / "fleet"
+    datasets.write_parquet(df[keep].reset_index(drop=True), data, meta)
+    ref = root / "features"
+    calibrate_fleet(data, "ukf", CalibrationSetup(drift_std_per_sqrt_h=float(DRIFT)),
+                    out=ref, keep_results=False)
+    return data, ref
+
+
+def test_sigkill_of_calibrate_resumes_to_the_uninterrupted_files(tmp_path, cut):
+    data, ref = cut
+    out = tmp_path / "features"
+    p = start("calibrate", data, "--drift", DRIFT, "--jobs", "2", "--out", out, "--json")
+    wait_for(p, lambda: datasets.written_units(out), "the first calibrated unit")
+    code, _ = signal_and_wait(p, signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    written = datasets.written_units(out)
+    assert written == [3], written  # the short unit was done, the long one was not
+    visible = [q.name for q in out.iterdir() if not q.name.startswith(".")]
+    assert visible == ["unit=3"], visible  # no half-written unit under its name
+    assert files(out) == {k: v for k, v in files(ref).items() if k.startswith("unit=3/")}
+    # the rerun: what `hyprog calibrate` calls, in this process (one command start less)
+    from calibration import CalibrationSetup
+    from calibration.fleet import calibrate_fleet
+
+    run = calibrate_fleet(data, "ukf", CalibrationSetup(drift_std_per_sqrt_h=float(DRIFT)),
+                          out=out, keep_results=False)
+    assert run.skipped == [3] and sorted(run.units) == [4]  # unit 3 kept, unit 4 computed
+    assert not [q for q in out.rglob(".*") if ".tmp-" in q.name]
+    assert not lock_path(out).exists()  # the killed run's lock was taken over and released
+    assert files(out) == files(ref)
+
+
+def test_sigterm_of_calibrate_is_one_line(tmp_path, cut):
+    data, _ = cut
+    out = tmp_path / "features"
+    p = start("calibrate", data, "--drift", DRIFT, "--out", out)
+    wait_for(p, lambda: lock_path(out).exists(), "the output lock")
+    code, err = signal_and_wait(p, signal.SIGTERM)
+    assert code == 143, err
+    assert err.strip() == "error: terminated", err
+    assert not lock_path(out).exists()
+    assert not [q for q in tmp_path.rglob(".*") if ".tmp-" in q.name]
