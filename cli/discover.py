@@ -34,7 +34,7 @@ def discover(
                                         "mhe, ukf, ekf, map_cycle.")] = "coarse",
     candidates: Annotated[str | None, typer.Option(
         "--candidates", help="Comma-separated effects to test (default: the library's steady and "
-        "sensor effects).")] = None,
+        "sensor effects; add map_scaling for map adaptation of each component).")] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Family-wise false-discovery level "
                                          "per dataset.")] = 0.01,
     max_effects: Annotated[int, typer.Option("--max-effects", help="Most effects to add.")]

@@ -29,11 +29,15 @@ Design decisions (what was chosen and why)
    between flights (``q`` per sqrt(hour)), the exact prior of N-CMAPSS and the simulator. A
    filter with loose process noise would absorb any effect whose signature lies in the span of
    ``dF/dtheta``; a per-cycle theta cannot absorb what varies with the operating point within a
-   flight. The estimators of :mod:`calibration` (``mhe`` by default, or ``ukf``, ``ekf``,
-   ``map_cycle``) give the starting point through their public API; a bounded Gauss-Newton
-   polish reaches the MAP of the per-cycle model, so that the gradient and information the
-   tests need are those of one well-defined likelihood. ``q`` is estimated by maximum marginal
-   likelihood (exact for the linearised model) unless given.
+   flight. The starting point is the same fit on every 16th sample of each flight
+   (``coarse``, the default: a sixteenth of the cost per iteration, and the full fit then
+   needs one step) or an estimator of :mod:`calibration` through its public API (``mhe``,
+   ``ukf``, ``ekf``, ``map_cycle``); a bounded Gauss-Newton polish reaches the MAP of the
+   per-cycle model, so that the gradient and information the tests need are those of one
+   well-defined likelihood. A fit that starts where another ended (the drift refit, the
+   held-out and training fits) reuses its linearisation (:meth:`.null_fit.Problem.masked`)
+   instead of evaluating the model again: the model's sensitivities are the cost. ``q`` is
+   estimated by maximum marginal likelihood (exact for the linearised model) unless given.
 2. **Noise first.** Every threshold assumes the documented ``R``. The noise level per channel
    is estimated from successive differences within flights (von Neumann 1941), which a smooth
    model error does not inflate; channels off by more than 10 % (and significantly) are
@@ -82,10 +86,15 @@ Design decisions (what was chosen and why)
    autocorrelation, chi^2 per degree of freedom) and, on simulated data, theta_hat against the
    truth.
 
-Not done: map-adaptation candidates (component efficiency / flow scalers varying with corrected
-speed) would need a hook with the component's corrected speed, which the model's effect hooks
-do not pass today; series effects (spool and thermal dynamics) have no steady parameter and are
-left to the unknown-effect tests (the basis holds the rates of the operating variables).
+Map adaptation: the effect ``map_scaling`` (:mod:`engine_model.effect_library`: efficiency and
+flow scalers of one component, linear and quadratic in its corrected speed minus one) is a
+candidate when named (``--candidates ...,map_scaling``), one instance per component, so that
+a model whose map shape is off at part power is corrected and the component named. It is not
+in the default list: its 20 parameters nearly double the size of every sensitivity evaluation and
+compile a second model variant.
+
+Not done: series effects (spool and thermal dynamics) have no steady parameter and are left to
+the unknown-effect tests (the basis holds the rates of the operating variables).
 """
 
 from .loop import VERDICTS, DiscoverOptions, Discovery, discover

@@ -49,7 +49,9 @@ class Candidate:
     ``effect`` (its :class:`Effect` at neutral values), ``params`` (tested parameter names),
     ``lower`` / ``upper`` (bounds: the neutral value on a one-sided side, else +-inf),
     ``fixed`` (parameters held at their default), ``channel`` (sensor candidates),
-    ``index`` (positions of ``params`` in the loop's global ``phi``)."""
+    ``index`` (positions of ``params`` in the loop's global ``phi``), ``valid`` (n, 2): each
+    parameter's documented valid range (``Param.valid``; +-inf where open): an estimate
+    outside it is not this effect (:mod:`.confirm`)."""
 
     name: str
     effect: Effect
@@ -59,6 +61,15 @@ class Candidate:
     fixed: tuple = ()
     channel: str | None = None
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    valid: np.ndarray | None = None
+
+    def outside_valid(self, values) -> list:
+        """The parameters whose ``values`` lie outside their valid range."""
+        if self.valid is None:
+            return []
+        v = np.asarray(values, float)
+        bad = (v < self.valid[:, 0]) | (v > self.valid[:, 1])
+        return [q for q, b in zip(self.params, bad, strict=True) if b]
 
     @property
     def sensor(self) -> bool:
@@ -83,7 +94,7 @@ class Candidate:
 
 def _make(effect: Effect, channel=None) -> Candidate:
     fixed = FIXED_NUISANCE.get(effect.registry_name, ())
-    params, lo, hi = [], [], []
+    params, lo, hi, valid = [], [], [], []
     for q in effect.params:
         if q.kind != "model" or q.name in fixed:
             continue
@@ -91,8 +102,10 @@ def _make(effect: Effect, channel=None) -> Candidate:
         r = q.range
         lo.append(q.default if r is not None and r[0] == q.default else -np.inf)
         hi.append(q.default if r is not None and r[1] == q.default else np.inf)
+        v = q.valid or (None, None)
+        valid.append((-np.inf if v[0] is None else v[0], np.inf if v[1] is None else v[1]))
     return Candidate(effect.name, effect, tuple(params), np.array(lo), np.array(hi),
-                     tuple(fixed), channel)
+                     tuple(fixed), channel, valid=np.array(valid, float).reshape(-1, 2))
 
 
 def check_names(names=None) -> tuple:

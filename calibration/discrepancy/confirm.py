@@ -29,7 +29,11 @@ flights.
    unit): a candidate is rejected for its share only when the part it leaves unexplained,
    ``X - LR``, is itself significant (above :data:`REMAINDER_Z` null std), so that a small
    true effect near the detection limit is not refused because of the noise in ``X``.
-5. ``phi_j`` with its standard error from the inverse Gauss-Newton matrix of the joint fit
+5. Its estimate must lie within the effect's documented valid range (``Param.valid``): a
+   bleed of 30 % or an efficiency scaler that changes by 40 % per percent of speed is not
+   that effect but the fit bending a flexible shape to something else (seen on C-MAPSS's six
+   operating points with the map-adaptation candidates).
+6. ``phi_j`` with its standard error from the inverse Gauss-Newton matrix of the joint fit
    (the Cramer-Rao bound at the estimate, theta uncertainty included), and a 95 % interval
    (clipped at the boundary of a one-sided parameter).
 """
@@ -129,7 +133,8 @@ def confirm(problem: Problem, null: FitState, candidate, phi1: np.ndarray, weigh
         share_ok = share >= MIN_SHARE
     s_null = s_alt = None
     ok_held = True
-    if masks is not None and p <= p_crit and share_ok:
+    outside = candidate.outside_valid(ph)
+    if masks is not None and p <= p_crit and share_ok and not outside:
         train, held = masks
         nt_fit = (null_train() if null_train is not None else
                   fit(problem, null.Theta, null.phi, accepted, masks=train, xs=null.lin.x,
@@ -142,6 +147,10 @@ def confirm(problem: Problem, null: FitState, candidate, phi1: np.ndarray, weigh
         ok_held = s_alt < s_null
     if p > p_crit:
         reason = f"likelihood ratio {LR:.3g}: p = {p:.3g} above the family-wise {p_crit:.3g}"
+    elif outside:
+        reason = ("estimate outside the effect's valid range: " + ", ".join(
+            f"{q} = {v:.4g}" for q, v in zip(candidate.params, ph, strict=True)
+            if q in outside))
     elif not share_ok:
         reason = (f"explains {100 * share:.0f} % of the residual's chi-square excess (below "
                   f"{100 * MIN_SHARE:.0f} %): a corner of something else")
@@ -154,5 +163,5 @@ def confirm(problem: Problem, null: FitState, candidate, phi1: np.ndarray, weigh
                                                    " (no held-out flights: fewer than three "
                                                    "cycles per unit)")
     return Confirmation(candidate, alt, LR, p, share, ph, std, ci, s_null, s_alt,
-                        p <= p_crit and share_ok and ok_held, reason,
+                        p <= p_crit and share_ok and ok_held and not outside, reason,
                         alt_train if masks is not None and s_alt is not None else None)
