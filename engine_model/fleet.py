@@ -32,13 +32,19 @@ its own single-threaded model of the truth once); the client writes each unit as
 with the same writer. A unit's draws depend only on ``(seed, unit)``, so the fleet is the one
 simulated locally, byte for byte.
 
-Interruption: the parquet directory (or h5 file) appears under its name only when complete. A
-killed run (SIGKILL) leaves a hidden temporary next to it; the next run into the same ``out``
-deletes it once its writer is gone.
+Interruption and resume: the parquet directory (or h5 file) appears under its name only when
+complete. A parquet fleet is built unit by unit in a hidden folder next to it
+(:func:`partial_dir`, keyed on the settings), each unit written atomically; an interrupted run
+(Ctrl-C, SIGTERM, SIGKILL) leaves that folder, and the next run with the same settings keeps
+its complete units and simulates only the others (a unit's data depend only on ``(seed,
+unit)``, so the fleet is the uninterrupted run's, byte for byte). Hidden temporaries of a
+killed writer are deleted by the next run once their writer is gone.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -297,35 +303,50 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
              noise_scale: float = 1.0, model=None,
              progress: Callable[[int, int, int], None] | None = None, overwrite: bool = False,
              scheduler=None, jobs: int = 1):
-    """Simulate a fleet preset. With ``out`` the fleet is written (parquet streamed unit by
-    unit, or N-CMAPSS h5) and ``(path, report)`` is returned; without, ``(df, metadata,
+    """Simulate a fleet preset. With ``out`` the fleet is written (parquet unit by unit,
+    resumable; or N-CMAPSS h5) and ``(path, report)`` is returned; without, ``(df, metadata,
     report)``. ``effects``: :class:`effects.Effect` instances switched on in the truth. An
     existing ``out`` is replaced only when hyprog wrote it, or with ``overwrite``
     (:mod:`engine_model.datasets.ownership`). ``scheduler``: simulate the units on a Dask
     cluster (module docstring; ``jobs`` workers for ``"local"``); ``model`` is used only
     without it."""
-    from .cluster import process_model
     from .effects import split_series_effects
 
     p = get_preset(preset) if isinstance(preset, str) else preset
     specs = select_units(p, units)
     rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
     rec = record or p.record
+    meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
+    if out is not None:
+        _check_out(Path(out), fmt, overwrite)  # before any work
     steady, series = split_series_effects(effects)
-    if scheduler is not None:
-        return _simulate_on(scheduler, jobs, p, specs, rate, rec, seed, effects, noise_scale,
-                            out, fmt, progress, overwrite)
-    truth = model or process_model([e.spec() for e in steady])
-    p_def = np.asarray(truth.p_default, float)
 
-    def units_done():
-        for s in specs:
+    def local(todo):
+        from .cluster import process_model
+
+        truth = model or process_model([e.spec() for e in steady])
+        p_def = np.asarray(truth.p_default, float)
+        for s in todo:
             df, info = simulate_unit(truth, s, seed, rate, rec, noise_scale, p_def, series,
                                      p.wear_params)
             yield s.unit, df, info
 
-    meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
-    return _write(units_done(), specs, meta, out, fmt, progress, overwrite)
+    def on_cluster(todo):
+        from .cluster import connect
+
+        names = [e.spec() for e in effects]
+        tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
+                  "noise_scale": float(noise_scale), "wear_params": p.wear_params,
+                  "effects": names} for s in todo]
+        with connect(scheduler, jobs) as cluster:
+            for unit, df, info in cluster.map(simulate_unit_task, tasks):
+                if info["dropped"]:  # the worker's warning stays there: say it here
+                    warnings.warn(f"unit {unit}: {info['dropped']} samples did not converge "
+                                  "and were dropped", stacklevel=3)
+                yield unit, df, info
+
+    produce = local if scheduler is None else on_cluster
+    return _write(produce, specs, meta, out, fmt, progress, overwrite)
 
 
 def fleet_metadata(p: Preset, specs, rate: float, rec: str, seed: int, effects,
@@ -343,29 +364,6 @@ def fleet_metadata(p: Preset, specs, rate: float, rec: str, seed: int, effects,
     }
 
 
-def _simulate_on(scheduler, jobs, p, specs, rate, rec, seed, effects, noise_scale, out, fmt,
-                 progress, overwrite):
-    """:func:`simulate` with one task per unit on a Dask cluster."""
-    from .cluster import connect
-
-    names = [e.spec() for e in effects]
-    tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
-              "noise_scale": float(noise_scale), "wear_params": p.wear_params,
-              "effects": names} for s in specs]
-    meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
-    if out is not None:
-        _check_out(Path(out), fmt, overwrite)  # before a cluster is started
-    def results(cluster):
-        for unit, df, info in cluster.map(simulate_unit_task, tasks):
-            if info["dropped"]:  # the worker's warning stays there: say it here
-                warnings.warn(f"unit {unit}: {info['dropped']} samples did not converge and "
-                              "were dropped", stacklevel=4)
-            yield unit, df, info
-
-    with connect(scheduler, jobs) as cluster:
-        return _write(results(cluster), specs, meta, out, fmt, progress, overwrite)
-
-
 def _check_out(out: Path, fmt: str, overwrite: bool) -> None:
     from . import datasets
 
@@ -374,28 +372,64 @@ def _check_out(out: Path, fmt: str, overwrite: bool) -> None:
     datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
 
 
-def _write(results, specs, meta, out, fmt, progress, overwrite):
-    """Write the units ``results`` yields (``(unit, df, info)``, in any order) to ``out``
-    (parquet: each as it comes; h5 and ``out=None``: the fleet in the preset's order)."""
+# ------------------------------------------------------------------------------ resume
+PARTIAL_MARK = ".partial-"
+UNIT_INFO_DIR = ".units"
+
+
+def partial_dir(out: Path, meta: dict) -> Path:
+    """The hidden folder ``.<name>.partial-<key>`` next to ``out`` where a parquet fleet is
+    built unit by unit; ``key`` hashes the metadata (preset, units, seed, rate, effects, ...)
+    and the hyprog version, so a rerun with the same settings continues it and one with other
+    settings does not."""
+    import hashlib
+
+    from .datasets import hyprog_version
+    from .datasets.metadata import json_default
+
+    body = json.dumps({"meta": meta, "hyprog": hyprog_version()}, sort_keys=True,
+                      default=json_default)
+    return out.parent / f".{out.name}{PARTIAL_MARK}{hashlib.sha256(body.encode()).hexdigest()[:16]}"
+
+
+def _done_units(stage: Path) -> dict[int, dict]:
+    """unit -> its info (eol, t_s, dropped, rows) for the units complete in ``stage`` (part
+    file and info both written)."""
+    from .datasets import written_units
+
+    done = {}
+    for u in written_units(stage):
+        try:
+            done[u] = json.loads((stage / UNIT_INFO_DIR / f"{u}.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            continue  # the info was not written: simulate the unit again
+    return done
+
+
+def _write_info(stage: Path, unit: int, info: dict) -> None:
+    folder = stage / UNIT_INFO_DIR
+    folder.mkdir(exist_ok=True)
+    tmp = folder / f".{unit}.json.tmp-{os.getpid()}"
+    tmp.write_text(json.dumps(info))
+    os.replace(tmp, folder / f"{unit}.json")
+
+
+def _write(produce, specs, meta, out, fmt, progress, overwrite):
+    """Simulate the units ``produce(specs)`` yields (``(unit, df, info)``, in any order) and
+    write them to ``out``. Parquet: each unit as it comes into :func:`partial_dir` (units
+    already there from an interrupted run with the same settings are kept, not simulated
+    again), renamed to ``out`` when the last is written; h5 and ``out=None``: the fleet in
+    the preset's order."""
     from . import datasets
+    from .datasets.atomic import remove_path, swap_into_place
 
     report = SimulationReport()
     t0 = time.perf_counter()
     order = {s.unit: k for k, s in enumerate(specs)}
 
-    def run():
-        for k, (unit, df, info) in enumerate(results):
-            report.rows[unit] = len(df)
-            report.dropped[unit] = info["dropped"]
-            report.eol[unit] = info["eol"]
-            report.t_s[unit] = info["t_s"]
-            if progress is not None:
-                progress(k + 1, len(specs), len(df))
-            yield unit, df
-
-    def in_order():
-        return pd.concat([df for _, df in sorted(run(), key=lambda r: order[r[0]])],
-                         ignore_index=True)
+    def note(unit, info):
+        for d in ("rows", "dropped", "eol", "t_s"):
+            getattr(report, d)[unit] = info[d]
 
     def finish(rep):
         rep.seconds = time.perf_counter() - t0
@@ -403,17 +437,39 @@ def _write(results, specs, meta, out, fmt, progress, overwrite):
             setattr(rep, d, {u: getattr(rep, d)[u] for u in sorted(order, key=order.get)})
         return rep
 
-    if out is None:
-        df = in_order()
-        return df, meta, finish(report)
-    out = Path(out)
-    _check_out(out, fmt, overwrite)
-    remove_stale_output(out)
-    if fmt == "parquet":
-        with datasets.parquet_unit_writer(out, meta, overwrite=overwrite) as write_unit:
-            for _, df in run():
-                write_unit(df)
-    else:
-        df = in_order()
+    def run(todo, start=0):
+        for k, (unit, df, info) in enumerate(produce(todo), start):
+            info = {**info, "rows": len(df)}
+            note(unit, info)
+            if progress is not None:
+                progress(k + 1, len(specs), len(df))
+            yield unit, df, info
+
+    if out is None or fmt == "h5":
+        df = pd.concat([df for _, df, _ in sorted(run(specs), key=lambda r: order[r[0]])],
+                       ignore_index=True)
+        if out is None:
+            return df, meta, finish(report)
+        out = Path(out)
+        remove_stale_output(out)
         datasets.write_ncmapss_h5(df, out, meta, overwrite=overwrite)
+        return out, finish(report)
+    out = Path(out)
+    remove_stale_output(out)
+    stage = partial_dir(out, meta)
+    for other in out.parent.glob(f".{out.name}{PARTIAL_MARK}*"):
+        if other != stage:  # an interrupted run with other settings: not continued
+            remove_path(other)
+    stage.mkdir(parents=True, exist_ok=True)
+    datasets.remove_stale_temporaries(stage)
+    done = {u: i for u, i in _done_units(stage).items() if u in order}
+    for u, info in done.items():
+        note(u, info)
+    todo = [s for s in specs if s.unit not in done]
+    for unit, df, info in run(todo, len(done)):
+        datasets.write_unit_part(df, stage, meta)
+        _write_info(stage, unit, info)
+    remove_path(stage / UNIT_INFO_DIR)
+    _check_out(out, fmt, overwrite)  # again: what is there now may be replaced
+    swap_into_place(stage, out)
     return out, finish(report)

@@ -3,8 +3,9 @@
 - SIGINT (Ctrl-C) and SIGTERM end a command with one line, ``error: interrupted`` /
   ``error: terminated``, exit 130 / 143, and leave neither the output, a temporary nor the lock;
 - a SIGKILL of ``hyprog simulate`` or ``hyprog calibrate`` in the middle of its run (after its
-  first unit was written, before the last) leaves no half-written final file (a hidden
-  temporary at most), and the rerun gives the files of an uninterrupted run byte for byte.
+  first unit was written, before the last) leaves no half-written final file (hidden
+  temporaries or a hidden partial fleet at most), and the rerun, which continues from the
+  complete units, gives the files of an uninterrupted run byte for byte.
 
 The uninterrupted runs are the library's, in this process (the shared compiled model), and so
 is the calibration's rerun, so each test costs one or two command starts. Data: the tiny
@@ -63,9 +64,10 @@ def signal_and_wait(proc: subprocess.Popen, sig: int) -> tuple[int, str]:
     return proc.returncode, err
 
 
-def hidden(folder: Path, name: str) -> list[Path]:
-    """The hidden temporaries of ``name`` in ``folder``."""
-    return sorted(folder.glob(f".{name}.tmp-*"))
+def hidden(folder: Path, name: str, kind: str = "tmp") -> list[Path]:
+    """The hidden temporaries (``kind="tmp"``) or partial fleets (``"partial"``) of ``name``
+    in ``folder``."""
+    return sorted(folder.glob(f".{name}.{kind}-*"))
 
 
 def files(root: Path) -> dict[str, bytes]:
@@ -85,36 +87,42 @@ def simulated(tmp_path_factory):
     return out
 
 
-def _first_unit_in_temporary(folder: Path, name: str):
+def _first_unit_in_partial(folder: Path, name: str):
     def ready():
-        return any((t / "unit=3").is_dir() or (t / "unit=4").is_dir()
-                   for t in hidden(folder, name))
+        return any(datasets.written_units(t) for t in hidden(folder, name, "partial"))
     return ready
 
 
 def test_sigkill_of_simulate_leaves_no_fleet_and_the_rerun_is_identical(tmp_path, simulated):
+    """Killed after its first unit: no fleet under its name, the unit in the hidden partial
+    fleet; the rerun simulates the other unit only and writes the uninterrupted fleet."""
     out = tmp_path / "fleet"
     p = start("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json")
-    wait_for(p, _first_unit_in_temporary(tmp_path, "fleet"), "the first simulated unit")
+    wait_for(p, _first_unit_in_partial(tmp_path, "fleet"), "the first simulated unit")
     code, _ = signal_and_wait(p, signal.SIGKILL)
     assert code == -signal.SIGKILL
     assert not out.exists()  # the fleet appears only complete
-    assert hidden(tmp_path, "fleet")  # what the killed writer left: hidden, never read
+    (partial,) = hidden(tmp_path, "fleet", "partial")  # hidden: never read as data
+    kept = datasets.written_units(partial)
+    assert len(kept) == 1, kept  # killed between its two units
     r = hyprog("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json")
     assert r.returncode == 0, r.stderr
-    assert not hidden(tmp_path, "fleet")  # the rerun removed the dead writer's temporary
-    assert not lock_path(out).exists()
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["fleet"]  # no partial, lock, temp
     assert files(out) == files(simulated)
 
 
-def test_sigint_of_simulate_is_one_line_and_leaves_nothing(tmp_path):
+def test_sigint_of_simulate_is_one_line_and_leaves_only_complete_units(tmp_path):
     out = tmp_path / "fleet"
     p = start("simulate", "--preset", "tiny", "--units", "3,4", "--out", out)
-    wait_for(p, _first_unit_in_temporary(tmp_path, "fleet"), "the first simulated unit")
+    wait_for(p, _first_unit_in_partial(tmp_path, "fleet"), "the first simulated unit")
     code, err = signal_and_wait(p, signal.SIGINT)
     assert code == 130, err
     assert err.strip() == "error: interrupted", err
-    assert sorted(tmp_path.iterdir()) == []  # no fleet, no temporary, no lock
+    assert not out.exists() and not hidden(tmp_path, "fleet")  # no fleet, no temporary
+    (partial,) = hidden(tmp_path, "fleet", "partial")  # what the next run continues
+    assert [q.name for q in tmp_path.iterdir()] == [partial.name]  # the lock was released
+    for unit in partial.iterdir():  # complete units only (and their info)
+        assert unit.name == ".units" or (unit / datasets.PARQUET_PART).is_file(), unit
 
 
 # ----------------------------------------------------------------------------- calibrate
