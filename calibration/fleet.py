@@ -55,16 +55,14 @@ data against the model at theta = 0, units of measure), so bad input fails befor
 is written. After estimating, :func:`unit_check.check_result` adds warnings (a channel the
 model cannot explain, theta_hat at a bound) to each unit's summary.
 
-Worker processes die with their parent (:func:`watch_parent`): on Linux through
-``prctl(PR_SET_PDEATHSIG, SIGKILL)``, everywhere through a watchdog thread that ends the worker
-when its parent process is gone, so a SIGKILL of ``hyprog calibrate --jobs J`` leaves no
-worker behind.
+Worker processes die with their parent (:func:`engine_model.cluster.watch_parent`): on Linux
+through ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, everywhere through a watchdog thread that ends
+the worker when its parent process is gone, so a SIGKILL of ``hyprog calibrate --jobs J``
+leaves no worker behind.
 """
 
 from __future__ import annotations
 
-import os
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -229,69 +227,23 @@ class _Serial:
         pass
 
 
-PR_SET_PDEATHSIG = 1  # linux/prctl.h
-WATCH_PERIOD_S = 0.5
-
-
-def watch_parent(parent_pid: int) -> None:
-    """Make this (worker) process die with its parent ``parent_pid`` (module docstring):
-    ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux, and a daemon thread that polls
-    ``os.getppid()`` every ``WATCH_PERIOD_S`` and ends the process once the parent is gone
-    (the child is re-parented then)."""
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        except (OSError, AttributeError):  # pragma: no cover - no libc prctl
-            pass
-    if os.getppid() != parent_pid:  # the parent died before the signal was armed
-        os._exit(1)
-
-    def watch():
-        while True:
-            time.sleep(WATCH_PERIOD_S)
-            if os.getppid() != parent_pid:
-                os._exit(1)
-
-    threading.Thread(target=watch, name="hyprog-parent-watch", daemon=True).start()
-
-
 class _Processes:
-    def __init__(self, jobs):
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
+    """Tasks on ``jobs`` worker processes that die with this one
+    (:class:`engine_model.cluster.ProcessPool`)."""
 
-        self.ex = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
-                                      initializer=watch_parent, initargs=(os.getpid(),))
+    def __init__(self, jobs):
+        from engine_model.cluster import ProcessPool
+
+        self.pool = ProcessPool(jobs)
 
     def run(self, tasks):
-        from concurrent.futures import as_completed
-
-        futures = [self.ex.submit(run_task, t) for t in tasks]
-        try:
-            for f in as_completed(futures):
-                yield f.result()
-        finally:
-            for f in futures:
-                f.cancel()
+        yield from self.pool.map(run_task, tasks)
 
     def close(self):
-        self.ex.shutdown(wait=True, cancel_futures=True)
+        self.pool.close()
 
     def abort(self):
-        """Stop now (an interrupt or an error): cancel what is queued, end the workers."""
-        procs = list((getattr(self.ex, "_processes", None) or {}).values())
-        self.ex.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-        for p in procs:
-            p.join(timeout=5)
+        self.pool.abort()
 
 
 class _Dask:

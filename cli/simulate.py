@@ -35,7 +35,8 @@ def simulate(
         "(tcp://host:port; the workers need hyprog installed, this process writes --out), "
         "or 'local' for a local cluster of --jobs workers. Same result as without.")] = None,
     jobs: Annotated[int, typer.Option(
-        "--jobs", help="Workers of the local Dask cluster (--scheduler local).")] = 1,
+        "--jobs", help="Worker processes, one unit per task (or the workers of the local Dask "
+        "cluster with --scheduler local). Same result as one.")] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Simulate a fleet to failure and write it (atomically) with its metadata. An existing

@@ -1,5 +1,6 @@
-"""Dask for the fleet commands (simulate, calibrate, the pipeline): one client, on a cluster or
-on this machine, and the tasks' results as they complete.
+"""Workers for the fleet commands (simulate, calibrate, the pipeline): a Dask client, on a
+cluster or on this machine, or a pool of local worker processes, and the tasks' results as
+they complete; and the engine model each worker process builds once (:func:`process_model`).
 
     from engine_model.cluster import connect
     with connect("tcp://host:8786") as cl:          # or "local", or a distributed.Client
@@ -14,10 +15,18 @@ on this machine, and the tasks' results as they complete.
 
 The tasks are pure functions of their arguments (their seeds travel with them), so where a task
 runs does not change its result; the client writes what comes back.
+
+:class:`ProcessPool`: ``jobs`` ``spawn`` worker processes that die with their parent
+(:func:`watch_parent`: ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux, and everywhere a watchdog
+thread that ends the worker once its parent is gone), so a SIGKILL of a command leaves no
+worker behind.
 """
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 
 from .validation import InputError
@@ -25,6 +34,84 @@ from .validation import InputError
 CONNECT_TIMEOUT = "20s"
 
 _MODELS: dict = {}
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+WATCH_PERIOD_S = 0.5
+
+
+def watch_parent(parent_pid: int) -> None:
+    """Make this (worker) process die with its parent ``parent_pid`` (module docstring):
+    ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux, and a daemon thread that polls
+    ``os.getppid()`` every ``WATCH_PERIOD_S`` and ends the process once the parent is gone
+    (the child is re-parented then)."""
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no libc prctl
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch():
+        while True:
+            time.sleep(WATCH_PERIOD_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="hyprog-parent-watch", daemon=True).start()
+
+
+class ProcessPool:
+    """``jobs`` worker processes (``spawn``) that die with this process (module docstring)."""
+
+    def __init__(self, jobs: int):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.ex = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
+                                      initializer=watch_parent, initargs=(os.getpid(),))
+
+    def map(self, fn: Callable, tasks: Iterable) -> Iterator:
+        """``fn(task)`` for every task, yielded as each completes; what is queued is
+        cancelled when the caller stops."""
+        from concurrent.futures import as_completed
+
+        futures = [self.ex.submit(fn, t) for t in tasks]
+        try:
+            for f in as_completed(futures):
+                yield f.result()
+        finally:
+            for f in futures:
+                f.cancel()
+
+    def close(self) -> None:
+        self.ex.shutdown(wait=True, cancel_futures=True)
+
+    def abort(self) -> None:
+        """Stop now (an interrupt or an error): cancel what is queued, end the workers."""
+        procs = list((getattr(self.ex, "_processes", None) or {}).values())
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=5)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, *exc):
+        if kind is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def process_model(effects: Sequence[str] = (), threads: int | None = None):
@@ -142,4 +229,4 @@ def connect(scheduler, jobs: int = 1) -> Cluster:
     return Cluster(client)
 
 
-__all__ = ["Cluster", "connect", "process_model"]
+__all__ = ["Cluster", "ProcessPool", "connect", "process_model", "watch_parent"]

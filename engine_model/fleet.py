@@ -308,8 +308,9 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     report)``. ``effects``: :class:`effects.Effect` instances switched on in the truth. An
     existing ``out`` is replaced only when hyprog wrote it, or with ``overwrite``
     (:mod:`engine_model.datasets.ownership`). ``scheduler``: simulate the units on a Dask
-    cluster (module docstring; ``jobs`` workers for ``"local"``); ``model`` is used only
-    without it."""
+    cluster (module docstring; ``jobs`` workers for ``"local"``); without it, ``jobs > 1``
+    worker processes (:class:`cluster.ProcessPool`), one unit per task; ``model`` is used only
+    in this process (neither)."""
     from .effects import split_series_effects
 
     p = get_preset(preset) if isinstance(preset, str) else preset
@@ -345,7 +346,26 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
                                   "and were dropped", stacklevel=3)
                 yield unit, df, info
 
-    produce = local if scheduler is None else on_cluster
+    def on_processes(todo):
+        from .cluster import ProcessPool
+
+        names = [e.spec() for e in effects]
+        tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
+                  "noise_scale": float(noise_scale), "wear_params": p.wear_params,
+                  "effects": names} for s in todo]
+        with ProcessPool(min(jobs, len(tasks))) as pool:
+            for unit, df, info in pool.map(simulate_unit_task, tasks):
+                if info["dropped"]:
+                    warnings.warn(f"unit {unit}: {info['dropped']} samples did not converge "
+                                  "and were dropped", stacklevel=3)
+                yield unit, df, info
+
+    if scheduler is not None:
+        produce = on_cluster
+    elif jobs > 1 and model is None:
+        produce = on_processes
+    else:
+        produce = local
     return _write(produce, specs, meta, out, fmt, progress, overwrite)
 
 

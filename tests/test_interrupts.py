@@ -95,7 +95,8 @@ def _first_unit_in_partial(folder: Path, name: str):
 
 def test_sigkill_of_simulate_leaves_no_fleet_and_the_rerun_is_identical(tmp_path, simulated):
     """Killed after its first unit: no fleet under its name, the unit in the hidden partial
-    fleet; the rerun simulates the other unit only and writes the uninterrupted fleet."""
+    fleet; the rerun (with --jobs 2) simulates the other unit only, in a worker process, and
+    writes the uninterrupted fleet."""
     out = tmp_path / "fleet"
     p = start("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json")
     wait_for(p, _first_unit_in_partial(tmp_path, "fleet"), "the first simulated unit")
@@ -105,7 +106,9 @@ def test_sigkill_of_simulate_leaves_no_fleet_and_the_rerun_is_identical(tmp_path
     (partial,) = hidden(tmp_path, "fleet", "partial")  # hidden: never read as data
     kept = datasets.written_units(partial)
     assert len(kept) == 1, kept  # killed between its two units
-    r = hyprog("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json")
+    # the rerun in a worker process (--jobs: one unit per task, the pool's path)
+    r = hyprog("simulate", "--preset", "tiny", "--units", "3,4", "--out", out, "--json",
+               "--jobs", "2")
     assert r.returncode == 0, r.stderr
     assert sorted(q.name for q in tmp_path.iterdir()) == ["fleet"]  # no partial, lock, temp
     assert files(out) == files(simulated)
