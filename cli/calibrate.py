@@ -98,6 +98,8 @@ Mode = Annotated[str | None, typer.Option(
 Hessian = Annotated[str | None, typer.Option(
     "--hessian", help="mhe / map_cycle: gauss-newton or exact (default: gauss-newton).")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON report only.")]
+Quiet = Annotated[bool, typer.Option("--quiet", help="No progress bar (it is drawn on a "
+                                     "terminal only).")]
 
 
 @app.command("run")
@@ -110,6 +112,7 @@ def run(
     noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
     stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
+    quiet: Quiet = False,
 ):
     """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std).
 
@@ -128,7 +131,7 @@ def run(
         opts = _options(method, window, stride, mode, hessian)
         unit_list = parse_units(units)
         setup = setup_with_drift_mle(drift, data, setup, unit_list)
-        if as_json:
+        if as_json or quiet:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
                                   keep_results=False)
         else:

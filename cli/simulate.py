@@ -37,6 +37,8 @@ def simulate(
     jobs: Annotated[int, typer.Option(
         "--jobs", help="Worker processes, one unit per task (or the workers of the local Dask "
         "cluster with --scheduler local). Same result as one.")] = 1,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar (it is drawn on a "
+                                        "terminal only).")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Simulate a fleet to failure and write it (atomically) with its metadata. An existing
@@ -68,7 +70,8 @@ def simulate(
         out = datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
         with datasets.output_lock(out):  # one writer per output
             path, report = _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects,
-                                record, fmt, overwrite, n_units, as_json, scheduler, jobs)
+                                record, fmt, overwrite, n_units, as_json or quiet, scheduler,
+                                jobs)
     rep = {"out": str(path), "rows": report.total_rows, "seconds": round(report.seconds, 2),
            "units": {str(u): {"rows": report.rows[u], "eol": report.eol[u], "t_s": report.t_s[u],
                               "dropped": report.dropped[u]} for u in report.rows}}
@@ -80,10 +83,10 @@ def simulate(
 
 
 def _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects, record, fmt,
-         overwrite, n_units, as_json, scheduler, jobs):
-    """The simulation itself, with a progress bar on a terminal's stderr in text mode."""
+         overwrite, n_units, no_bar, scheduler, jobs):
+    """The simulation itself, with a progress bar on a terminal's stderr unless ``no_bar``."""
     kw = {"overwrite": overwrite, "scheduler": scheduler, "jobs": jobs}
-    if as_json:
+    if no_bar:
         return fleet.simulate(preset_obj, out, unit_list, rate, seed, effects, record, fmt, **kw)
     from rich.progress import Progress
 

@@ -113,3 +113,19 @@ def test_simulate_on_a_dask_cluster_gives_the_local_fleet(tmp_path, cluster):
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["units"]["4"]["rows"] > 0
     assert files(out) == files(local)
+
+
+def test_run_options_on_the_command_line_are_checked(tmp_path, data):
+    """--jobs 0 and a scheduler that refuses the connection: one line, exit 2, nothing left
+    (the cluster is reached when the first stage that uses it starts)."""
+    from cli.main import app
+    from tests.cli_checks import assert_user_error, cli_runner
+
+    out = tmp_path / "out"
+    runner = cli_runner()
+    assert_user_error(runner.invoke(app, ["pipeline", str(data), "--jobs", "0", "--out",
+                                          str(out)]), "[run] jobs", ">= 1")
+    assert_user_error(runner.invoke(app, ["pipeline", str(data), "--scheduler",
+                                          "tcp://127.0.0.1:9", "--out", str(out)]),
+                      "tcp://127.0.0.1:9", "cannot connect")
+    assert not out.exists()
