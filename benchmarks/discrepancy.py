@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibration import CalibrationSetup  # noqa: E402
 from calibration.discrepancy import DiscoverOptions, discover  # noqa: E402
-from calibration.discrepancy.candidates import STEADY_DEFAULT  # noqa: E402
+from calibration.discrepancy.candidates import steady_effects  # noqa: E402
 from engine_model import EngineModel, fleet, sensor_noise  # noqa: E402
 from engine_model.effects import parse_effect_spec  # noqa: E402
 from engine_model.shared_model import default_model  # noqa: E402
@@ -72,9 +72,9 @@ def simulate(base, name: str, size: float, unit: int, seed: int):
         df[ch] = eff.apply("sensor:" + ch, df[ch].to_numpy(float), p, {})
         rng = np.random.default_rng([seed, unit, 99])
         return sensor_noise.add_noise(df, rng), eff
-    effs = [parse_effect_spec(n) for n in STEADY_DEFAULT]
-    effs[STEADY_DEFAULT.index(name)] = eff
-    truth = EngineModel(design=base.design, effects=effs)
+    # the candidate model's variant (same compiled code) with this effect switched on
+    truth = EngineModel(design=base.design, effects=steady_effects(
+        None, {eff.name: {q.name: eff.values[q.name] for q in eff.params}}))
     df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=truth, effects=[eff])
     return df, eff
 
@@ -97,7 +97,7 @@ def one_run(base, frames, opts, truth_name=None) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
-def cmapss(base, path, method):
+def cmapss(base, path, method, candidates=None):
     """The loop on NASA's C-MAPSS FD002 operating-point means: one 'unit', one cycle (constant
     theta), the channels C-MAPSS shows. Each row is a mean of many readings, but of many units
     too: the documented sensor noise (half the unit-to-unit scatter) is kept as each row's
@@ -111,11 +111,13 @@ def cmapss(base, path, method):
     sensors = tuple(c for c in ("Nf", "Nc", "T24", "T30", "T50", "P15", "P2", "P30")
                     if c in df.columns)
     d = discover([df], CalibrationSetup(sensors=sensors),
-                 DiscoverOptions(method=method, drift=1e-3), base_model=base)
+                 DiscoverOptions(method=method, drift=1e-3, candidates=candidates),
+                 base_model=base)
     from calibration.discrepancy.report import markdown
 
     print(markdown(d))
-    out = Path(__file__).parent / "results" / "discrepancy_cmapss.md"
+    name = "discrepancy_cmapss" + ("_candidates" if candidates else "") + ".md"
+    out = Path(__file__).parent / "results" / name
     out.write_text(markdown(d))
     return d
 
@@ -128,6 +130,8 @@ def main(argv=None):
     ap.add_argument("--units", default="1", help="tiny units, one run each")
     ap.add_argument("--null-fleets", type=int, default=2)
     ap.add_argument("--method", default="coarse")
+    ap.add_argument("--candidates", help="comma-separated effects to test (default: the "
+                    "loop's default list)")
     ap.add_argument("--cmapss", help="run on C-MAPSS operating-point means instead (e.g. "
                     "data_samples/cmapss-fd002-operating-points.csv)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" /
@@ -140,7 +144,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     base = default_model()
     if a.cmapss:
-        return cmapss(base, a.cmapss, a.method)
+        return cmapss(base, a.cmapss, a.method,
+                      tuple(a.candidates.split(",")) if a.candidates else None)
     opts = DiscoverOptions(method=a.method)
     cache_path = Path(a.runs)
     cache_path.parent.mkdir(parents=True, exist_ok=True)
@@ -152,11 +157,17 @@ def main(argv=None):
                 done[_key(r)] = r
     print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'}); "
           f"{len(done)} cached runs in {cache_path}")
-    cells = [(name, float(size), int(seed), int(unit))
-             for name in filter(None, a.effects.split(","))
-             for size in a.sizes.split(",") for seed in a.seeds.split(",")
-             for unit in a.units.split(",")]
-    cells += [(None, 0.0, 1000 + k, 1 + k % 4) for k in range(a.null_fleets)]
+    # seed by seed (every effect and size, then a share of the no-effect fleets), so that an
+    # interrupted benchmark has a balanced part of every cell
+    seeds = [int(x) for x in a.seeds.split(",")]
+    nulls = [(None, 0.0, 1000 + k, 1 + k % 4) for k in range(a.null_fleets)]
+    per = -(-len(nulls) // len(seeds))
+    cells = []
+    for i, seed in enumerate(seeds):
+        cells += [(name, float(size), seed, int(unit))
+                  for size in a.sizes.split(",") for name in filter(None, a.effects.split(","))
+                  for unit in a.units.split(",")]
+        cells += nulls[i * per:(i + 1) * per]
     runs = []
     for name, size, seed, unit in cells:
         key = (name, size, seed, unit, a.method)

@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from calibration import CalibrationSetup
 from calibration.discrepancy import DiscoverOptions, discover
 from calibration.discrepancy.candidates import (
+    MAP_CANDIDATES,
     SENSOR_DEFAULT,
     STEADY_DEFAULT,
     CandidateModel,
@@ -37,11 +38,10 @@ SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
 FAST = dict(n_draws=5000)  # warm start: coarse (the default)
 
 
-def _truth(model, **bleed):
-    effs = [parse_effect_spec(n) for n in STEADY_DEFAULT]
-    effs[0] = parse_effect_spec("customer_bleed:" + ",".join(f"{k}={v}" for k, v in
-                                                            bleed.items()))
-    return EngineModel(design=model.design, effects=effs)
+def _truth(model, **values):
+    """The candidate model's variant (the same compiled code) with the bleed switched on."""
+    return EngineModel(design=model.design,
+                       effects=steady_effects(None, {"customer_bleed": values}))
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +115,7 @@ MAP_EFF = 0.05
 
 
 def test_speed_dependent_map_error_names_the_component(model):
-    names = STEADY_DEFAULT + ("map_scaling",) + SENSOR_DEFAULT
+    names = STEADY_DEFAULT + MAP_CANDIDATES + SENSOR_DEFAULT
     truth = EngineModel(design=model.design, effects=steady_effects(
         names, {"map_scaling_HPC": {"eff_1": MAP_EFF}}))
     eff = parse_effect_spec(f"map_scaling:component=HPC,eff_1={MAP_EFF}")

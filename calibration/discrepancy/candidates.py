@@ -2,7 +2,8 @@
 
 A *candidate* is one instance of a registered effect (:mod:`engine_model.effects`) with
 parameters ``phi`` that are absent at their neutral (default) values: a physical effect of the
-steady state (customer bleed, HP off-take, Reynolds effects, inlet loss, nozzle areas), or a
+steady state (customer bleed, HP off-take, Reynolds effects, inlet loss, nozzle areas), a map
+adaptation of one component (``map_scaling``, one instance per component, when named), or a
 sensor effect on one measured channel (bias and gain, gain drift with cycles), one instance per
 channel.
 
@@ -38,6 +39,8 @@ from engine_model.effects import Effect, EffectSet, parse_effect_spec, registry
 from engine_model.validation import InputError
 
 STEADY_DEFAULT = ("customer_bleed", "hp_offtake", "reynolds", "inlet_loss", "nozzle_area")
+# named to be tested (``--candidates``), not by default (package docstring)
+MAP_CANDIDATES = ("map_scaling",)
 SENSOR_DEFAULT = ("sensor_bias", "sensor_drift")
 # parameters held at their default: identified only when the effect is present (docstring)
 FIXED_NUISANCE = {"reynolds": ("flow_ratio",)}
