@@ -337,12 +337,23 @@ def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | Non
 
 def dataset_units(data, units: Sequence[int] | None = None) -> list[int]:
     """The units of the dataset ``data`` (those of ``units`` when given), without reading the
-    fleet: a parquet directory by unit lists them in its partition names; other layouts are
-    read for their keys only. A unit that is not there is an InputError naming it."""
+    fleet: a parquet directory by unit lists them in its partition names (and their row
+    counts in the part files' footers); other layouts, or a partition without rows, are read
+    for their keys only (so the reader's error names it). A unit that is not there is an
+    InputError naming it."""
+    import pyarrow.parquet as pq
+
     p = Path(data)
     parts = datasets.written_units(p) if p.is_dir() else []
     if parts and (units is None or set(units) <= set(parts)):
-        return sorted(parts if units is None else {int(u) for u in units})
+        chosen = sorted(parts if units is None else {int(u) for u in units})
+        try:
+            empty = [u for u in chosen if pq.read_metadata(
+                p / f"unit={u}" / datasets.PARQUET_PART).num_rows == 0]
+        except (OSError, ValueError):  # pyarrow's ArrowInvalid is a ValueError
+            empty = chosen  # not readable as parquet: the reader says why
+        if not empty:
+            return chosen
     keys = datasets.read_dataset(data, units=units, columns=[])[0]
     return sorted(int(u) for u in keys["unit"].unique())
 
