@@ -36,8 +36,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
-import uuid
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -46,6 +45,13 @@ from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
 from engine_model.datasets import hyprog_version
+from engine_model.datasets.atomic import (
+    default_mode,
+    remove_path,
+    remove_stale_temporaries,
+    swap_into_place,
+    temporary_prefix,
+)
 from engine_model.validation import InputError
 
 from .conformal import SplitConformal
@@ -108,21 +114,19 @@ def save_model(model, path: str | os.PathLike) -> Path:
     target = check_model_target(path)
     body, files = _manifest(model)
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex}"
-    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex}"
+    # what a writer killed here before (SIGKILL, power loss) left behind; a running writer's
+    # temporaries are kept (their names carry host and process id)
+    remove_stale_temporaries(target.parent)
+    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(target.name), dir=target.parent))
     try:
-        tmp.mkdir()
         for name, blob in files.items():
             (tmp / name).write_bytes(blob)
         (tmp / MANIFEST).write_text(json.dumps(body, indent=1, allow_nan=False) + "\n")
-        if target.exists():
-            os.replace(target, old)
-        os.replace(tmp, target)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-        if old.exists():
-            shutil.rmtree(old, ignore_errors=True)
+        tmp.chmod(default_mode(directory=True))
+        swap_into_place(tmp, target)
+    except BaseException:
+        remove_path(tmp)
+        raise
     return target
 
 

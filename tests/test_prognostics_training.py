@@ -209,6 +209,23 @@ def test_checkpoint_round_trip(trained, tmp_path):
     assert (tmp_path / "notes" / "keep.txt").read_text() == "mine"
 
 
+def test_save_removes_what_a_killed_writer_left(trained, tmp_path):
+    """A writer killed by SIGKILL leaves its hidden temporary; the next save under that folder
+    removes it (its process is gone) and keeps a running writer's (this process's)."""
+    from engine_model.datasets.atomic import temporary_prefix
+
+    m = trained[0]
+    dead = tmp_path / (temporary_prefix("model").rsplit("-", 2)[0] + "-999999999-x")
+    running = tmp_path / (temporary_prefix("other") + "y")
+    for d in (dead, running):
+        d.mkdir()
+        (d / "member-0.safetensors").write_bytes(b"half")
+    path = save_model(m, tmp_path / "model")
+    assert not dead.exists() and running.exists()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == [running.name]
+    assert load_model(path).members[0].seed == m.members[0].seed
+
+
 def test_tampered_weights_are_refused(trained, tmp_path):
     _, path, _ = trained
     d = _copy(path, tmp_path)
