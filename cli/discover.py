@@ -52,6 +52,8 @@ def discover(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines (they are printed "
+                                        "to a terminal's stderr only).")] = False,
 ):
     """Screen every candidate effect with score tests, confirm and add the significant
     ones, and report what remains (verdict, effects with uncertainty, before/after).
@@ -83,7 +85,8 @@ def discover(
             raise CliError("no rows")
         frames = [g for _, g in df.groupby("unit", sort=True)]
         err = console(stderr=True)
-        say = (lambda msg: err.print(msg)) if (not as_json and err.is_terminal) else None
+        show = not (as_json or quiet) and err.is_terminal
+        say = (lambda msg: err.print(msg)) if show else None
         result = run(frames, setup, opts, base_model=get_model(), source=data, progress=say)
         write_report(result, out)
     if as_json:

@@ -222,6 +222,7 @@ def test_cli_discover_writes_the_report(tmp_path, clean_dir):
     (["--candidates", "nope"], "unknown effect"),
     (["--candidates", "dynamics"], "series effect"),
     (["--method", "kf"], "--method"),
+    (["--quiet", "--method", "kf"], "--method"),
     (["--drift", "-1"], "--drift"),
 ])
 def test_cli_discover_bad_input_is_one_line(tmp_path, args, msg):
