@@ -89,6 +89,21 @@ def signal_line() -> str | None:
     return error_line(SIGNAL_WORDS.get(TERMINATED[0], f"signal {TERMINATED[0]}"))
 
 
+def forget_unhandled_interrupt() -> None:
+    """Clear CPython's record of a KeyboardInterrupt that ended a string ``exec``.
+
+    CPython (3.8 to 3.12 at least) sets ``_PyRuntime.signals.unhandled_keyboard_interrupt``
+    when code run from a string (``exec("...")``: ``dataclasses``, ``namedtuple`` and
+    friends build classes that way) ends with a KeyboardInterrupt, even when a caller then
+    catches it; under ``python -m`` ``Py_RunMain`` reads that flag at exit and kills the
+    process with SIGINT, so a Ctrl-C we handled (one ``error: interrupted`` line, exit 130)
+    would be reported as death by signal (-2) whenever it happened to land inside such an
+    exec. The flag is reset at the start of every string evaluation, so evaluating an empty
+    string clears it (Modules/main.c ``pymain_run_module``, Python/pythonrun.c
+    ``run_eval_code_obj``)."""
+    exec("pass", {})  # noqa: S102 - a constant string: only its side effect on the flag
+
+
 @contextmanager
 def terminate_as_exit() -> Iterator[None]:
     """Inside the block SIGINT (Ctrl-C) raises KeyboardInterrupt and SIGTERM SystemExit(143),

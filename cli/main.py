@@ -31,6 +31,7 @@ from cli.common import (
     TERMINATED,
     error_line,
     exit_code_after,
+    forget_unhandled_interrupt,
     signal_line,
     terminate_as_exit,
 )
@@ -84,6 +85,7 @@ class HyprogGroup(TyperGroup):
             typer.echo(signal_line(), err=True)
             rv = exit_code_after(0)
         rv = rv if isinstance(rv, int) else 0
+        forget_unhandled_interrupt()  # else `python -m` may die by SIGINT after exit 130
         if not standalone_mode:
             return rv
         sys.exit(rv)

@@ -181,3 +181,26 @@ def test_sigterm_of_calibrate_is_one_line(tmp_path, cut):
     assert err.strip() == "error: terminated", err
     assert not lock_path(out).exists()
     assert not [q for q in tmp_path.rglob(".*") if ".tmp-" in q.name]
+
+
+@pytest.mark.parametrize("forget", [False, True])
+def test_interrupt_caught_after_a_string_exec_still_exits_130_under_python_m(tmp_path, forget):
+    """A Ctrl-C that lands inside a string ``exec`` (dataclasses, namedtuple) and is handled
+    leaves CPython's 'unhandled KeyboardInterrupt' flag set, and ``python -m`` then dies by
+    SIGINT (-2) instead of exiting 130; :func:`cli.common.forget_unhandled_interrupt`, called
+    by the entry point before it exits, clears it. The unfixed case shows the test reaches
+    the flag."""
+    (tmp_path / "interrupted_module.py").write_text(
+        "import sys\n"
+        "from cli.common import forget_unhandled_interrupt\n"
+        "try:\n"
+        "    exec('raise KeyboardInterrupt', {})\n"
+        "except KeyboardInterrupt:\n"
+        "    pass\n"
+        f"if {forget}:\n"
+        "    forget_unhandled_interrupt()\n"
+        "sys.exit(130)\n")
+    env = {**ENV, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}
+    r = subprocess.run([sys.executable, "-m", "interrupted_module"], env=env, cwd=tmp_path,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == (130 if forget else -signal.SIGINT), r.stderr
