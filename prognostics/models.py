@@ -32,6 +32,7 @@ does not matter.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from engine_model.validation import InputError
@@ -65,7 +66,15 @@ class FNN(nn.Module):
 class SameConv1d(nn.Conv1d):
     """``Conv1d`` whose output has the input's length: zero padding ``(k - 1) // 2`` on the
     left and ``k - 1 - (k - 1) // 2`` on the right (PyTorch's ``padding='same'``), done as the
-    larger padding on both sides and the first ``offset`` outputs dropped."""
+    larger padding on both sides and the first ``offset`` outputs dropped.
+
+    Computed as a channels-last 2-D convolution over a ``(B, c_in, 1, L)`` view: the same
+    function and parameters as ``Conv1d`` (its ``weight`` is ``(c_out, c_in, k)``, so
+    checkpoints do not change), but oneDNN's channels-last kernels take about 40 % less CPU
+    per CNN training step than its 1-D channels-first ones at the paper's sizes (50 -> 10
+    channels, kernel 10, L = 50, batch 1,024: 61-63 against 89-103 CPU ms per step, measured
+    with ``benchmarks/prognostics_speed.py``'s network). A batch whose memory is already
+    ``(B, L, c_in)`` (:meth:`prognostics.windows.Windows.batch`) is read without a copy."""
 
     def __init__(self, c_in: int, c_out: int, kernel: int):
         right = kernel - 1 - (kernel - 1) // 2
@@ -73,8 +82,9 @@ class SameConv1d(nn.Conv1d):
         self.offset = right - (kernel - 1) // 2
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, c_in, L) -> (B, c_out, L)
-        y = super().forward(x)
-        return y[..., self.offset:self.offset + x.shape[-1]]
+        x4 = x.unsqueeze(2).contiguous(memory_format=torch.channels_last)
+        y = F.conv2d(x4, self.weight.unsqueeze(2), self.bias, padding=(0, self.padding[0]))
+        return y[:, :, 0, self.offset:self.offset + x.shape[-1]]
 
 
 class CNN1D(nn.Module):

@@ -10,10 +10,10 @@ its **last** row (the prediction is made with the data seen so far).
   one role (:func:`splits.segments`), so no window spans two units, a training and a validation
   flight, or a development and a test unit.
 - **Views, not copies.** All scaled rows live in one C-contiguous ``(N, k)`` float32 tensor
-  ``base``; ``base.unfold(0, L, 1)`` is a ``(N - L + 1, k, L)`` view of it (the layout
-  ``Conv1d`` wants: channels, then time), and a window set is that view plus the int64 start
-  row of each window. A mini-batch gathers its windows (one ``(B, k, L)`` copy of ``B``
-  windows); the window set itself never holds more than ``base``, whatever ``L``.
+  ``base``; ``base.unfold(0, L, 1)`` is a ``(N - L + 1, k, L)`` view of it (channels, then
+  time, as ``Conv1d`` indexes them), and a window set is that view plus the int64 start row
+  of each window. A mini-batch gathers its windows (one ``(B, k, L)`` copy of ``B`` windows,
+  stored time-major); the window set itself never holds more than ``base``, whatever ``L``.
 - **Short segments.** A segment of ``n < L`` rows is left-padded with ``L - n`` copies of its
   first row (the engine as first seen, held: a plausible operating point, unlike zeros after
   scaling, which would be a fictitious mid-range condition) and gives exactly one window, whose
@@ -61,12 +61,15 @@ class Windows:
         return self.base.unfold(0, self.length, 1)
 
     def batch(self, index: torch.Tensor) -> torch.Tensor:
-        """The inputs of windows ``index``: a contiguous ``(B, k, L)`` copy of those windows
-        (the layout ``Conv1d`` runs fastest on), or ``(B, k)`` when ``L == 1``."""
+        """The inputs of windows ``index``: a ``(B, k, L)`` copy of those windows whose memory
+        is ``(B, L, k)`` (each window's rows as in ``base``: the gather copies whole rows, and
+        it is the layout the channels-last convolution of
+        :class:`prognostics.models.SameConv1d` reads without a copy), or ``(B, k)`` when
+        ``L == 1``."""
         s = self.starts[index]
         if self.length == 1:
             return self.base[s]
-        return self.view()[s].contiguous()
+        return self.view().transpose(1, 2)[s].contiguous().transpose(1, 2)
 
     def to(self, device) -> Windows:
         """The same windows on ``device`` (the base moves once; windows stay views)."""

@@ -236,6 +236,7 @@ def test_make_windows_shares_memory_with_its_input_and_handles_stride():
     batch = w.batch(torch.tensor([3]))
     assert batch.shape == (1, 2, 4)
     np.testing.assert_array_equal(batch[0].numpy(), x[8:12].T)
+    assert batch.transpose(1, 2).is_contiguous()  # rows kept whole: channels-last conv input
     fnn = make_windows(x, np.array([0]), np.array([20]), length=1)
     assert len(fnn) == 20 and fnn.batch(torch.tensor([5])).tolist() == [x[5].tolist()]
 

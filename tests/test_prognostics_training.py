@@ -39,6 +39,11 @@ def test_cnn_keeps_the_window_length_with_papers_same_padding():
     x = torch.randn(4, 3, 50)
     ref = F.conv1d(F.pad(x, (4, 5)), conv.weight, conv.bias)  # 4 zeros left, 5 right
     torch.testing.assert_close(conv(x), ref)
+    # the channels-last computation has Conv1d's gradients too
+    g = torch.autograd.grad(conv(x).square().sum(), (conv.weight, conv.bias))
+    g_ref = torch.autograd.grad(ref.square().sum(), (conv.weight, conv.bias))
+    for a, b in zip(g, g_ref, strict=True):
+        torch.testing.assert_close(a, b)
     odd = SameConv1d(3, 2, 7)
     torch.testing.assert_close(odd(x), F.conv1d(F.pad(x, (3, 3)), odd.weight, odd.bias))
     net = build_model("cnn", 7, 30, seed=0)
