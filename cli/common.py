@@ -1,6 +1,6 @@
 """Helpers shared by the CLI commands: one-line errors, JSON output, the console, the shared
-engine model, and the parsers of options several commands take (``--units``, lists,
-``--format``)."""
+engine model, the options every command takes (``--quiet``) and the parsers of options several
+commands take (``--units``, lists, ``--format``)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,19 @@ import math
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Annotated
 
 import typer
 
 EXIT_FAILED = 1  # a computation failed (no convergence)
 EXIT_USAGE = 2  # bad input or usage (cli.main docstring: the exit-code rule)
+
+QUIET_HELP = ("No progress bars or status lines on stderr; errors and warnings are still "
+              "printed. Every command takes it.")
+
+#: ``--quiet``, the same on every command (scripts pass it uniformly): a command's parameter
+#: ``quiet: Quiet = False``.
+Quiet = Annotated[bool, typer.Option("--quiet", help=QUIET_HELP)]
 
 
 class CliError(Exception):
@@ -137,12 +145,12 @@ def terminate_as_exit() -> Iterator[None]:
             signal.signal(sig, fn)
 
 
-def get_model():
+def get_model(quiet: bool = False):
     """The process-wide engine model (:func:`engine_model.shared_model.default_model`), with a
-    status line on a terminal while it is built."""
+    status line on a terminal while it is built (none with ``quiet``)."""
     from engine_model.shared_model import default_model, is_built
 
-    if not is_built() and sys.stderr.isatty():
+    if not quiet and not is_built() and sys.stderr.isatty():
         with console(stderr=True).status(
                 "building the engine model (the first run compiles C, later ones load it)"):
             return default_model()

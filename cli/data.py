@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, user_errors
+from cli.common import CliError, Quiet, console, echo_json, user_errors
 
 app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5); import C-MAPSS.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
@@ -18,6 +18,7 @@ app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5); import 
 def info(
     path: Annotated[Path, typer.Argument(help="Dataset: a parquet directory/file or an h5 file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """Summarise a dataset: units, split, cycles, rows, end of life, onset t_s, effects.
 
@@ -65,6 +66,7 @@ def import_cmapss(
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="Replace --out even when hyprog did not write it.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """Read a C-MAPSS (2008) subset into a hyprog parquet dataset (N-CMAPSS names, alt in ft,
     RUL per cycle; test unit u becomes unit 1000 + u). Written atomically; an existing --out

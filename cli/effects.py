@@ -6,11 +6,12 @@ from typing import Annotated
 
 import typer
 
-from cli.common import console, echo_json
+from cli.common import Quiet, console, echo_json
 
 
 def effects(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """List the effect library: name, parameters, units, default, realistic and valid ranges,
     and the channels each effect moves. Switch one on in a simulation with

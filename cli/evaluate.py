@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, parse_units, user_errors
+from cli.common import CliError, Quiet, console, echo_json, parse_units, user_errors
 
 
 def load_model_warned(model_dir: Path):
@@ -31,6 +31,7 @@ def evaluate(
         "--units", help="Units to evaluate (default: the metadata's test_units).")] = None,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """RMSE, NASA score, interval coverage per test unit and overall, on every sample (the
     paper's protocol) and at each unit's last cycle (C-MAPSS's); prediction horizon.

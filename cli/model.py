@@ -24,6 +24,7 @@ import typer
 from cli.common import (
     EXIT_FAILED,
     CliError,
+    Quiet,
     console,
     echo_json,
     fail,
@@ -134,6 +135,7 @@ def point(
         "--theta", metavar="NAME=VALUE",
         help="Health parameter delta, repeatable, e.g. --theta HPT_eff_mod=-0.02.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """Every output of the engine model at one operating point.
 
@@ -142,7 +144,7 @@ def point(
     with user_errors():
         _check_point(alt, mach, tra, t2, dt_isa)
         th = parse_theta(theta)
-        s = get_model().point(alt, mach, tra, T2=t2, dT_isa=dt_isa or 0.0, theta=th)
+        s = get_model(quiet).point(alt, mach, tra, T2=t2, dT_isa=dt_isa or 0.0, theta=th)
     from engine_model import OUTPUT_NAMES, THETA_NAMES
 
     converged = bool(s["converged"])
@@ -213,6 +215,7 @@ def envelope(
     n: Annotated[int, typer.Option("--n", min=1, help="Number of random points.")] = 2000,
     seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """Sweep random points of the civil envelope: convergence rate, speed, failures.
 
@@ -224,7 +227,7 @@ def envelope(
     from engine_model.envelope import envelope_report
 
     with user_errors():
-        rep = envelope_report(get_model(), n, seed)
+        rep = envelope_report(get_model(quiet), n, seed)
     if as_json:
         echo_json(rep)
     else:
@@ -271,6 +274,7 @@ def reference(
         help="Reference table (default: data_samples/cmapss-fd002-operating-points.csv).",
         show_default=False)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
+    quiet: Quiet = False,
 ):
     """The model against C-MAPSS FD002 early-life means at its six operating points.
 
@@ -284,7 +288,7 @@ def reference(
     path = csv if csv is not None else lib.default_reference_path()
     with user_errors():  # the library's messages name the file
         ref = lib.load_reference(path)
-        records = lib.compare_reference(get_model(), ref)
+        records = lib.compare_reference(get_model(quiet), ref)
     channels = lib.compared_channels(ref)
     if as_json:
         echo_json(records)

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import console, echo_json, parse_units, user_errors
+from cli.common import Quiet, console, echo_json, parse_units, user_errors
 
 
 def per_cycle_path(out: Path) -> Path:
@@ -25,6 +25,7 @@ def predict(
                      ] = None,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
+    quiet: Quiet = False,
 ):
     """Predict the RUL of every sample that ends a full window (columns RUL_pred, RUL_std for
     an ensemble, RUL_lower / RUL_upper with a conformal interval) and its per-cycle mean,
