@@ -181,6 +181,7 @@ def compare_cmd(
     noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
     stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
+    quiet: Quiet = False,
 ):
     """Each method against the truth: RMSE, bias, consistency, Cramér-Rao bound, whiteness,
     speed.
@@ -202,7 +203,18 @@ def compare_cmd(
             estimator_class(m)
         mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
         opts = {"mhe": mhe, "map_cycle": _given(hessian=hessian)}
-        report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler)
+        if as_json or quiet:
+            report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler)
+        else:
+            from rich.progress import Progress
+
+            err = console(stderr=True)
+            with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
+                task = bar.add_task("comparing", total=None)
+                report = compare(
+                    data, names, setup, opts, parse_units(units), jobs, scheduler,
+                    progress=lambda m, d, n: bar.update(task, description=f"comparing: {m}",
+                                                        completed=d, total=n))
     if as_json:
         echo_json(report)
         return
