@@ -8,7 +8,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, parse_list, parse_units, user_errors
+from cli.common import (
+    CliError,
+    Quiet,
+    console,
+    echo_json,
+    parse_list,
+    parse_units,
+    user_errors,
+)
 
 _METHODS = ("coarse", "mhe", "ukf", "ekf", "map_cycle")
 
@@ -52,8 +60,7 @@ def discover(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines (they are printed "
-                                        "to a terminal's stderr only).")] = False,
+    quiet: Quiet = False,
 ):
     """Screen every candidate effect with score tests, confirm and add the significant
     ones, and report what remains (verdict, effects with uncertainty, before/after).
@@ -65,9 +72,13 @@ def discover(
         from calibration.discrepancy import DiscoverOptions
         from calibration.discrepancy import discover as run
         from calibration.discrepancy.candidates import check_names
-        from calibration.discrepancy.report import report_dict, write_report
+        from calibration.discrepancy.report import (
+            check_report_target,
+            report_dict,
+            write_report,
+        )
         from cli.common import check_choice, get_model
-        from engine_model.datasets import read_dataset
+        from engine_model.datasets import output_lock, read_dataset
 
         check_choice(method, "--method", _METHODS)
         p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
@@ -78,17 +89,21 @@ def discover(
                                alpha=alpha, max_effects=max_effects, drift=_drift(drift),
                                seed=seed)
         check_names(opts.candidates)
-        df, _meta = read_dataset(data, units=parse_units(units))
-        if "unit" not in df.columns:
-            df = df.assign(unit=1)
-        if len(df) == 0:
-            raise CliError("no rows")
-        frames = [g for _, g in df.groupby("unit", sort=True)]
-        err = console(stderr=True)
-        show = not (as_json or quiet) and err.is_terminal
-        say = (lambda msg: err.print(msg)) if show else None
-        result = run(frames, setup, opts, base_model=get_model(), source=data, progress=say)
-        write_report(result, out)
+        unit_list = parse_units(units)
+        check_report_target(out)  # before the run, not after it
+        with output_lock(out):  # one writer per report; released on Ctrl-C / SIGTERM too
+            df, _meta = read_dataset(data, units=unit_list)
+            if "unit" not in df.columns:
+                df = df.assign(unit=1)
+            if len(df) == 0:
+                raise CliError("no rows")
+            frames = [g for _, g in df.groupby("unit", sort=True)]
+            err = console(stderr=True)
+            show = not (as_json or quiet) and err.is_terminal
+            say = (lambda msg: err.print(msg)) if show else None
+            result = run(frames, setup, opts, base_model=get_model(quiet or as_json),
+                         source=data, progress=say)
+            write_report(result, out)
     if as_json:
         echo_json(report_dict(result))
         return

@@ -7,7 +7,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, parse_list, parse_units, user_errors
+from cli.common import (
+    CliError,
+    Quiet,
+    console,
+    echo_json,
+    parse_list,
+    parse_units,
+    user_errors,
+)
 
 app = typer.Typer(help="The paper's experiments and ablations on a feature table.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
@@ -47,7 +55,7 @@ def paper(
     no_baseline: Annotated[bool, typer.Option(
         "--no-baseline", help="Skip the physics-only baseline (needs the engine model).")
     ] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No line per run.")] = False,
+    quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
 ):
     """Main table (FNN/CNN, data-driven vs hybrid), horizon, ablations I, III, IV, conformal

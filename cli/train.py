@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, console, echo_json, parse_units, user_errors
+from cli.common import CliError, Quiet, console, echo_json, parse_units, user_errors
 
 INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta), groups joined "
                "by '+' (w, xs, xs_hat, xv, xv_hat, theta_hat, theta), explicit columns "
@@ -43,7 +43,7 @@ def train(
     alpha: Annotated[float, typer.Option("--alpha", help="Interval miscoverage (0.1: 90 %).")
                      ] = 0.1,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
-    quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
+    quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Train the paper's FNN or 1-D CNN on a feature table and save it (weights, scaler,
@@ -51,7 +51,7 @@ def train(
 
     Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
     """
-    from engine_model.datasets import read_dataset
+    from engine_model.datasets import output_lock, read_dataset
     from prognostics.checkpoint import check_model_target, save_model
     from prognostics.training import TrainConfig, fit
 
@@ -67,10 +67,11 @@ def train(
                           val_units=tuple(vu) if vu else None,
                           units=tuple(parse_units(units) or []) or None,
                           conformal_units=tuple(cu), alpha=alpha, device=device)
-        df, meta = read_dataset(features)
-        rul = fit(df, meta, cfg, seeds=range(seed, seed + ensemble),
-                  quiet=quiet or as_json, source=str(features))
-        save_model(rul, out)
+        with output_lock(out):  # one writer per model directory; released on Ctrl-C too
+            df, meta = read_dataset(features)
+            rul = fit(df, meta, cfg, seeds=range(seed, seed + ensemble),
+                      quiet=quiet or as_json, source=str(features))
+            save_model(rul, out)  # atomic: a killed run leaves no model directory
     rep = {"out": str(out), "model": rul.config.model, "inputs": rul.config.inputs,
            "columns": list(rul.columns), "window": rul.window, "max_rul": rul.config.max_rul,
            "parameters": rul.members[0].parameters,

@@ -32,7 +32,11 @@ of the data (a hash of every value of the table, ``pandas.util.hash_pandas_objec
 metadata). Its results live in ``OUT/runs/<key>/``: the model (``model/``, :mod:`.checkpoint`),
 the test predictions (``predictions.parquet``) and ``result.json``, written last and atomically:
 a run with ``result.json`` is done and is never trained again; an interrupted run leaves no
-``result.json`` and is redone. The part is not in the key, so a run that two parts share
+``result.json`` and is redone. One process writes into ``OUT`` at a time (the lock
+``.<OUT>.hyprog-lock`` beside it, :func:`engine_model.datasets.output_lock`); it first deletes
+the hidden temporaries a killed run left (``.<name>.tmp-<host>-<pid>-*`` of a process that is
+gone), so a SIGKILL at any moment leaves only complete files under their names and the rerun
+resumes from the completed runs. The part is not in the key, so a run that two parts share
 (``features`` data-driven and hybrid are ``main``'s CNN runs) is trained once. The device is
 not part of the key (a run resumed on another device reuses what was done; CPU and CUDA numbers
 differ in the last bits).
@@ -51,6 +55,8 @@ import numpy as np
 import pandas as pd
 
 from engine_model.channels import THETA_NAMES
+from engine_model.datasets import output_lock
+from engine_model.datasets.atomic import remove_stale_temporaries
 from engine_model.validation import InputError
 
 from .checkpoint import FORMAT_VERSION, save_model
@@ -275,23 +281,25 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
     fingerprint = data_fingerprint(df, meta)
     runs = plan(cfg, dev)
     records, trained, cached = [], 0, 0
-    for i, run in enumerate(runs, 1):
-        tc = train_config(run, cfg, test)
-        key = run_key(run, tc, fingerprint)
-        run_dir = out / "runs" / key
-        rec = load_result(run_dir)
-        if rec is None:
-            rec = _execute(run, tc, df, meta, test, run_dir)
-            trained += 1
-            state = "trained"
-        else:
-            cached += 1
-            state = "cached"
-        rec["key"] = key
-        records.append(rec)
-        rmse = rec["metrics"]["samples"]["overall"]["rmse"]
-        log(f"[{i}/{len(runs)}] {run.label()}: rmse {rmse:.3f} ({state})")
-    base = _baseline(df, meta, dev, test, out, fingerprint, hi_fn, log) if cfg.baseline \
-        else None
-    report = write_report(out, records, base, df, cfg)
+    with output_lock(out):  # one writer per OUT (module docstring, "Cache and resume")
+        remove_stale_temporaries(out)  # what a killed run was writing
+        for i, run in enumerate(runs, 1):
+            tc = train_config(run, cfg, test)
+            key = run_key(run, tc, fingerprint)
+            run_dir = out / "runs" / key
+            rec = load_result(run_dir)
+            if rec is None:
+                rec = _execute(run, tc, df, meta, test, run_dir)
+                trained += 1
+                state = "trained"
+            else:
+                cached += 1
+                state = "cached"
+            rec["key"] = key
+            records.append(rec)
+            rmse = rec["metrics"]["samples"]["overall"]["rmse"]
+            log(f"[{i}/{len(runs)}] {run.label()}: rmse {rmse:.3f} ({state})")
+        base = _baseline(df, meta, dev, test, out, fingerprint, hi_fn, log) if cfg.baseline \
+            else None
+        report = write_report(out, records, base, df, cfg)
     return {"trained": trained, "cached": cached, "runs": len(runs), "report": report}

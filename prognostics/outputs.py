@@ -1,8 +1,11 @@
 """Atomic output files: a reader never sees half a file, an error leaves the old file alone.
 
-Every writer builds its file as a hidden temporary sibling (``.<name>.tmp-<random>``) and moves
-it into place with ``os.replace`` (atomic on POSIX within a file system) only after writing
-succeeded; on any exception the temporary is removed.
+Every writer builds its file as a hidden temporary sibling (``.<name>.tmp-<host>-<pid>-<random>``,
+:func:`engine_model.datasets.atomic.temporary_prefix`) and moves it into place with
+``os.replace`` (atomic on POSIX within a file system) only after writing succeeded; on any
+exception the temporary is removed. A writer killed outright (SIGKILL) leaves only its hidden
+temporary, which :func:`engine_model.datasets.atomic.remove_stale_temporaries` deletes once
+that process is gone.
 """
 
 from __future__ import annotations
@@ -16,13 +19,15 @@ from pathlib import Path
 
 import pandas as pd
 
+from engine_model.datasets.atomic import temporary_prefix
+
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` if the block succeeds."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex}{target.suffix}"
+    tmp = target.parent / f"{temporary_prefix(target.name)}{uuid.uuid4().hex}{target.suffix}"
     try:
         yield tmp
         os.replace(tmp, target)

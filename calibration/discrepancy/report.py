@@ -1,7 +1,8 @@
 """The before/after report of :func:`loop.discover`: ``discover.json``, ``discover.md`` and
-``residuals.png`` in one output directory, written atomically (a temporary sibling moved into
-place; an existing directory is replaced only if it is an earlier report, recognised by its
-``discover.json``).
+``residuals.png`` in one output directory, written atomically (a hidden temporary sibling
+``.<name>.tmp-<host>-<pid>-*`` moved into place; an existing directory is replaced only if it
+is an earlier report, recognised by its ``discover.json``; the temporaries a killed writer left
+are removed by the next one).
 
 The PNG shows, for each added effect (or, when something unknown remains, for the channel with
 the most structure), the whitened residual of the channel it changed most against the
@@ -17,6 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
+from engine_model.datasets.atomic import (
+    TMP_MARK,
+    default_mode,
+    remove_path,
+    swap_into_place,
+    temporary_prefix,
+    writer_gone,
+)
 from engine_model.validation import InputError
 
 from .unknown import BASIS_NAMES, basis
@@ -211,31 +220,42 @@ def plot(d, path: Path) -> None:
     plt.close(fig)
 
 
+def check_report_target(out: str | Path) -> Path:
+    """``out`` may receive a report: it does not exist, or it is an earlier report (which
+    :func:`write_report` replaces). Call it before the discovery run so that a bad ``--out``
+    fails first, not after minutes."""
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or not (out / REPORT_JSON).is_file()):
+        raise InputError(f"{out}: exists and is not an earlier discover report; choose "
+                         "another --out")
+    return out
+
+
+def remove_stale_temporaries_of(out: Path) -> None:
+    """Delete the hidden temporaries of ``out`` (``.<name>.tmp-<host>-<pid>-*`` beside it)
+    that a writer killed before it could clean up left behind; a running writer's are kept
+    (:func:`engine_model.datasets.atomic.writer_gone`)."""
+    for q in out.parent.glob(f".{out.name}{TMP_MARK}*"):
+        if writer_gone(q.name):
+            remove_path(q)
+
+
 def write_report(d, out: str | Path) -> Path:
-    """Write ``discover.json``, ``discover.md`` and ``residuals.png`` into ``out``."""
-    import shutil
+    """Write ``discover.json``, ``discover.md`` and ``residuals.png`` into ``out``: built in a
+    hidden temporary sibling and moved into place (:mod:`engine_model.datasets.atomic`)."""
     import tempfile
 
-    out = Path(out)
-    if out.exists():
-        if not out.is_dir() or not (out / REPORT_JSON).is_file():
-            raise InputError(f"{out}: exists and is not an earlier discover report; choose "
-                             "another --out")
+    out = check_report_target(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    remove_stale_temporaries_of(out)
+    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), dir=out.parent))
     try:
         (tmp / REPORT_JSON).write_text(json.dumps(report_dict(d), indent=2, allow_nan=False))
         (tmp / "discover.md").write_text(markdown(d))
         plot(d, tmp / "residuals.png")
-        tmp.chmod(0o755)
-        if out.exists():
-            old = out.with_name(f".{out.name}.old-{tmp.name[-8:]}")
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out)
+        tmp.chmod(default_mode(directory=True))
+        swap_into_place(tmp, out)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_path(tmp)
         raise
     return out
