@@ -121,16 +121,24 @@ def rerun(*args):
 
 def interrupt(tmp_path: Path, attempt, tries: int = 3) -> tuple[Path, int, list[str]]:
     """``attempt(folder)`` -> (exit code, stderr lines) of a run into ``folder`` that was sent
-    SIGINT; repeated in a fresh folder when Python lost the interrupt: a KeyboardInterrupt
-    raised while a finalizer runs is printed as "Exception ignored" and dropped, so the command
-    completes (exit 0; :mod:`cli.main`, tests/test_pipeline.py). Such an attempt proves
-    nothing. Returns the folder, code and lines of the last attempt."""
+    SIGINT mid-run; repeated in a fresh folder (at most ``tries`` times) when Python lost the
+    interrupt and the command completed (exit 0). Returns the folder, code and lines of the
+    last attempt.
+
+    Python raises the KeyboardInterrupt in whatever Python code runs next, and two kinds of
+    code drop it: a finalizer ("Exception ignored", tests/test_pipeline.py) and CasADi's
+    SWIG wrappers, whose overload resolution calls Python (``shape`` -> ``size1``) to check
+    an argument's type and clears any exception raised there, silently (measured: about 1 in
+    20 SIGINTs of ``discover`` on this data; the entry point then exits 0, :mod:`cli.main`).
+    Such a run ends normally, with its output complete and nothing else left (checked)."""
     for k in range(tries):
         folder = tmp_path / f"attempt{k}"
         folder.mkdir()
         code, lines = attempt(folder)
-        if not (code == 0 and any("Exception ignored" in ln for ln in lines)):
+        if code != 0:
             break
+        assert temporaries(folder) == [], lines  # a completed run: its lock and temporaries
+        assert not list(folder.glob(".*hyprog-lock")), lines  # are gone
     return folder, code, lines
 
 
