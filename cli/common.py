@@ -112,6 +112,18 @@ def forget_unhandled_interrupt() -> None:
     exec("pass", {})  # noqa: S102 - a constant string: only its side effect on the flag
 
 
+#: Seconds between the re-raises of a termination signal whose exception was lost
+#: (:func:`terminate_as_exit`).
+SIGNAL_RETRY_S = 0.02
+
+
+def _signal_exception(signum: int) -> BaseException:
+    """KeyboardInterrupt for SIGINT, ``SystemExit(128 + signum)`` for the others."""
+    import signal
+
+    return KeyboardInterrupt() if signum == signal.SIGINT else SystemExit(128 + signum)
+
+
 @contextmanager
 def terminate_as_exit() -> Iterator[None]:
     """Inside the block SIGINT (Ctrl-C) raises KeyboardInterrupt and SIGTERM SystemExit(143),
@@ -119,30 +131,61 @@ def terminate_as_exit() -> Iterator[None]:
     released, temporaries removed, worker processes ended) and the entry point ends with one
     line (:func:`signal_line`) and exit ``128 + signum`` (130, 143) whatever the command did
     with the exception (typer turns KeyboardInterrupt into a silent exit 130). Only in the
-    main thread (signals go there)."""
+    main thread (signals go there).
+
+    **An exception that is lost is raised again.** Python runs a signal's handler between two
+    bytecodes of whatever code runs then, and some of that code discards exceptions: CasADi's
+    SWIG wrappers try each overload of a call and clear the error of those that do not match
+    (their type checks call Python, e.g. ``shape`` -> ``size1``), and an exception in a
+    finalizer is dropped (Python would print it as "Exception ignored"; inside the block
+    ``sys.unraisablehook`` keeps such a signal exception off stderr). Measured: about 1 in 20 Ctrl-C
+    of ``discover`` was lost that way and the run went on to the end. So after the first
+    signal an interval timer (SIGALRM, every :data:`SIGNAL_RETRY_S` s) raises the signal's
+    exception again, until the block is left; a re-raise is skipped while an exception is
+    being handled (``sys.exc_info()``: the signal's own exception running the ``finally`` and
+    ``except`` blocks it meets, which must finish their clean-up undisturbed). Interval timers
+    are not inherited by child processes. The timer is stopped, and a SIGALRM already
+    delivered is absorbed (``time.sleep(0)`` runs pending handlers) before the previous
+    handlers are restored."""
     import signal
     import threading
+    import time
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    leaving = []
 
-    def _exit(signum, frame):
+    def _first(signum, frame):
+        if TERMINATED:  # the same or another signal again (the user pressed Ctrl-C twice)
+            _again(signal.SIGALRM, frame)
+            return
         TERMINATED.append(signum)
-        raise SystemExit(128 + signum)
+        signal.setitimer(signal.ITIMER_REAL, SIGNAL_RETRY_S, SIGNAL_RETRY_S)
+        raise _signal_exception(signum)
 
-    def _interrupt(signum, frame):
-        TERMINATED.append(signum)
-        raise KeyboardInterrupt
+    def _again(signum, frame):
+        if leaving or not TERMINATED or sys.exc_info()[1] is not None:
+            return
+        raise _signal_exception(TERMINATED[0])
+
+    def _unraisable(u):  # a finalizer dropped the signal's exception: the timer raises it again
+        if not (TERMINATED and isinstance(u.exc_value, (KeyboardInterrupt, SystemExit))):
+            previous_hook(u)
 
     TERMINATED.clear()  # a signal of an earlier command of this process is not this one's
-    previous = {sig: signal.signal(sig, fn)
-                for sig, fn in ((signal.SIGTERM, _exit), (signal.SIGINT, _interrupt))}
+    previous = {sig: signal.signal(sig, fn) for sig, fn in
+                ((signal.SIGTERM, _first), (signal.SIGINT, _first), (signal.SIGALRM, _again))}
+    previous_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
     try:
         yield
     finally:
+        leaving.append(True)
+        signal.setitimer(signal.ITIMER_REAL, 0.0, 0.0)
+        time.sleep(0)  # run a SIGALRM that arrived before the timer stopped: a no-op now
         for sig, fn in previous.items():
             signal.signal(sig, fn)
+        sys.unraisablehook = previous_hook
 
 
 def get_model(quiet: bool = False):

@@ -204,3 +204,48 @@ def test_interrupt_caught_after_a_string_exec_still_exits_130_under_python_m(tmp
     r = subprocess.run([sys.executable, "-m", "interrupted_module"], env=env, cwd=tmp_path,
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == (130 if forget else -signal.SIGINT), r.stderr
+
+
+def _busy(seconds: float) -> None:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        pass
+
+
+def test_an_interrupt_that_code_swallows_is_raised_again():
+    """Code that clears the KeyboardInterrupt (as CasADi's SWIG overload checks do) does not
+    lose the Ctrl-C: the block's timer raises it again, and nothing is left armed after."""
+    from cli.common import TERMINATED, terminate_as_exit
+
+    with pytest.raises(KeyboardInterrupt), terminate_as_exit():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            _busy(1.0)
+        except KeyboardInterrupt:
+            pass  # swallowed
+        _busy(2.0)
+        raise AssertionError("the swallowed interrupt was not raised again")
+    assert TERMINATED == [signal.SIGINT]
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_an_interrupt_a_finalizer_drops_is_raised_again_and_not_printed(capsys):
+    import weakref
+
+    from cli.common import terminate_as_exit
+
+    class Owner:
+        pass
+
+    def callback(_):
+        os.kill(os.getpid(), signal.SIGINT)
+        _busy(0.5)  # the KeyboardInterrupt is raised here, inside the finalizer
+
+    with pytest.raises(KeyboardInterrupt), terminate_as_exit():
+        owner = Owner()
+        ref = weakref.ref(owner, callback)
+        del owner  # the callback runs; Python drops its exception
+        _busy(2.0)
+        raise AssertionError(f"the dropped interrupt was not raised again ({ref})")
+    assert "Exception ignored" not in capsys.readouterr().err
