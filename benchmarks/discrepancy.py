@@ -21,6 +21,15 @@ truth. Fleets: units of the ``tiny`` preset (one per run by default). Each run i
 :func:`discover` call (warm start ``coarse`` unless ``--method``, q by maximum likelihood,
 alpha 0.01).
 
+``--mds-units``: sizes are multiples of each effect's **minimum detectable size** (MDS) instead:
+the size of its scaled parameter that the loop's first screen detects with 80 % power at the
+family-wise level (:func:`calibration.discrepancy.identifiability.candidate_report`), the
+median over ``--mds-fleets`` no-effect reference fleets (runs keyed ``mds_reference``,
+cached like the others). Sizes 0.5, 1, 2 are then below, at and above it; the detection rate
+at 1 x MDS checks the MDS itself (about 80 % expected). Every run records the MDS of every
+candidate on its own data (``mds``), and the table shows each size in both units when the
+reference is known.
+
 Reported per effect and size: detection rate (anything added or an unknown effect),
 identification rate (the true effect added first), residual RMSE of the most affected channel
 before -> after (held-out flights, noise units), theta_hat bias before -> after (largest over
@@ -94,7 +103,32 @@ def one_run(base, frames, opts, truth_name=None) -> dict:
             "detected": bool(names) or d.verdict == "unknown effect",
             "channel": worst, "rmse_before": b[worst]["rmse"], "rmse_after": a[worst]["rmse"],
             "theta_bias_before": bias_b, "theta_bias_after": bias_a, "q": d.drift["q"],
-            "seconds": time.perf_counter() - t0}
+            "mds": min_detectable(d), "seconds": time.perf_counter() - t0}
+
+
+def scaled_param(name: str) -> str:
+    """The parameter of effect ``name`` that its size scales (``EFFECTS``' ``{x}``)."""
+    spec = EFFECTS[name][0]
+    return spec[:spec.index("={x}")].replace(":", ",").split(",")[-1]
+
+
+def min_detectable(d) -> dict:
+    """{candidate: {parameter: minimum detectable size}} of the loop's first screen."""
+    if not d.screens:
+        return {}
+    return {c["name"]: dict(zip(c["params"], c["min_detectable"], strict=True))
+            for c in d.screens[0]["candidates"]}
+
+
+def mds_reference(runs: list) -> dict:
+    """{effect: median MDS of its scaled parameter} over the ``mds_reference`` runs."""
+    refs = [r for r in runs if r["truth"] == "mds_reference" and r.get("mds")]
+    out = {}
+    for name in EFFECTS:
+        v = [r["mds"][name][scaled_param(name)] for r in refs if name in r["mds"]]
+        if v:
+            out[name] = float(np.median(v))
+    return out
 
 
 def cmapss(base, path, method, candidates=None):
@@ -141,6 +175,10 @@ def main(argv=None):
                     help="cache of finished runs (JSON lines): a rerun skips them")
     ap.add_argument("--table", default=str(Path(__file__).parent / "results" /
                                             "discrepancy_table.md"))
+    ap.add_argument("--mds-units", action="store_true",
+                    help="--sizes are multiples of each effect's minimum detectable size")
+    ap.add_argument("--mds-fleets", type=int, default=3,
+                    help="no-effect reference fleets for the minimum detectable sizes")
     ap.add_argument("--report-only", action="store_true",
                     help="write the table of the runs cached so far (a partial benchmark) "
                          "without running any")
@@ -160,6 +198,44 @@ def main(argv=None):
                 done[_key(r)] = r
     print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'}); "
           f"{len(done)} cached runs in {cache_path}")
+    runs = []
+
+    def run_cell(name, size, seed, unit):
+        """The cached run of this cell, else run it (a no-effect fleet when ``name`` is None
+        or ``mds_reference``) and cache it; None with --report-only."""
+        key = (name, size, seed, unit, a.method)
+        if key in done:
+            return done[key]
+        if a.report_only:
+            return None
+        if name in (None, "mds_reference"):
+            df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base)
+            spec = "none"
+            r = one_run(base, [df], opts, None)
+            r["truth"] = name
+        else:
+            df, eff = simulate(base, name, size, unit, seed)
+            spec = eff.spec()
+            r = one_run(base, [df], opts, name)
+        r.update(size=size, seed=seed, unit=unit, spec=spec, method=a.method)
+        done[key] = r
+        with cache_path.open("a") as fh:
+            fh.write(json.dumps(r) + "\n")
+        print(json.dumps(r), flush=True)
+        return r
+
+    effects = list(filter(None, a.effects.split(",")))
+    scale = dict.fromkeys(effects, 1.0)  # size -> multiple of the realistic size
+    refs = [run_cell("mds_reference", 0.0, 2000 + k, 1 + k % 4) for k in range(a.mds_fleets)]
+    mds = mds_reference([r for r in refs if r is not None])
+    if a.mds_units:
+        runs += [r for r in refs if r is not None]
+        missing = [n for n in effects if n not in mds]
+        if missing:
+            print(f"no minimum detectable size yet for {', '.join(missing)}; run without "
+                  "--report-only first")
+            return None
+        scale = {n: mds[n] / EFFECTS[n][1] for n in effects}
     # seed by seed (every effect and size, then a share of the no-effect fleets), so that an
     # interrupted benchmark has a balanced part of every cell
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -167,33 +243,17 @@ def main(argv=None):
     per = -(-len(nulls) // len(seeds))
     cells = []
     for i, seed in enumerate(seeds):
-        cells += [(name, float(size), seed, int(unit))
-                  for size in a.sizes.split(",") for name in filter(None, a.effects.split(","))
+        cells += [(name, float(f"{float(size) * scale[name]:.6g}"), seed, int(unit))
+                  for size in a.sizes.split(",") for name in effects
                   for unit in a.units.split(",")]
         cells += nulls[i * per:(i + 1) * per]
-    runs = []
-    for name, size, seed, unit in cells:
-        key = (name, size, seed, unit, a.method)
-        if key in done:
-            runs.append(done[key])
-            continue
-        if a.report_only:
-            continue
-        if name is None:
-            df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base)
-            spec = "none"
-        else:
-            df, eff = simulate(base, name, size, unit, seed)
-            spec = eff.spec()
-        r = one_run(base, [df], opts, name)
-        r.update(size=size, seed=seed, unit=unit, spec=spec, method=a.method)
-        runs.append(r)
-        with cache_path.open("a") as fh:
-            fh.write(json.dumps(r) + "\n")
-        print(json.dumps(r), flush=True)
+    for cell in cells:
+        r = run_cell(*cell)
+        if r is not None:
+            runs.append(r)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(runs, indent=1))
-    lines = table(runs)
+    lines = table(runs, mds)
     if a.report_only:
         lines.append(f"\npartial: {len(runs)} of {len(cells)} runs ({a.runs})")
     print("\n".join(lines))
@@ -205,11 +265,16 @@ def _key(r: dict) -> tuple:
             r.get("method", "ukf"))
 
 
-def table(runs: list) -> list:
-    """The Markdown table of ``runs`` (one row per effect and size) and the no-effect line."""
-    out = ["| effect | size | runs | detected | identified | channel RMSE before -> after |"
-           " theta bias before -> after | verdicts |", "|---|---|---|---|---|---|---|---|"]
-    keys = sorted({(r["truth"] or "none", r["size"]) for r in runs}, key=str)
+def table(runs: list, mds: dict | None = None) -> list:
+    """The Markdown table of ``runs`` (one row per effect and size: the size as a multiple of
+    the realistic size and, where ``mds`` has it, of the minimum detectable size) and the
+    no-effect line (the ``mds_reference`` fleets are listed apart)."""
+    mds = mds or {}
+    out = ["| effect | size (x realistic) | x MDS | runs | detected | identified | channel RMSE "
+           "before -> after | theta bias before -> after | verdicts |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    keys = sorted({(r["truth"] or "none", r["size"]) for r in runs
+                   if r["truth"] != "mds_reference"}, key=lambda k: (k[0], k[1]))
     for name, size in keys:
         rs = [r for r in runs if (r["truth"] or "none") == name and r["size"] == size]
         det = np.mean([r["detected"] for r in rs])
@@ -219,7 +284,8 @@ def table(runs: list) -> list:
         tb = np.mean([r["theta_bias_before"] for r in rs])
         ta = np.mean([r["theta_bias_after"] for r in rs])
         verdicts = ", ".join(sorted({r["verdict"] for r in rs}))
-        out.append(f"| {name} | {size:g} | {len(rs)} | {det:.0%} | "
+        x_mds = f"{size * EFFECTS[name][1] / mds[name]:.2g}" if name in mds else "-"
+        out.append(f"| {name} | {size:g} | {x_mds} | {len(rs)} | {det:.0%} | "
                    f"{'-' if name == 'none' else f'{idf:.0%}'} | {rs[0]['channel']} "
                    f"{rb:.2f} -> {ra:.2f} | {tb:.2e} -> {ta:.2e} | {verdicts} |")
     nulls = [r for r in runs if r["truth"] is None]
@@ -228,6 +294,12 @@ def table(runs: list) -> list:
         out.append(f"\nno-effect fleets: {len(nulls)}, false discoveries (an effect added) "
                    f"{fd:.0%}, 'unknown effect' "
                    f"{np.mean([r['verdict'] == 'unknown effect' for r in nulls]):.0%}")
+    refs = [r for r in runs if r["truth"] == "mds_reference"]
+    if mds:
+        out.append(f"\nminimum detectable size (80 % power, family-wise alpha; median of "
+                   f"{len(refs) or 'the'} no-effect reference fleets): " + ", ".join(
+                       f"{n} {v:.3g} ({v / EFFECTS[n][1]:.2g} x realistic)"
+                       for n, v in mds.items()))
     return out
 
 
