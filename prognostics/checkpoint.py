@@ -48,7 +48,7 @@ from engine_model.datasets import hyprog_version
 from engine_model.datasets.atomic import (
     default_mode,
     remove_path,
-    remove_stale_temporaries,
+    remove_stale_temporaries_of,
     swap_into_place,
     temporary_prefix,
 )
@@ -116,7 +116,7 @@ def save_model(model, path: str | os.PathLike) -> Path:
     target.parent.mkdir(parents=True, exist_ok=True)
     # what a writer killed here before (SIGKILL, power loss) left behind; a running writer's
     # temporaries are kept (their names carry host and process id)
-    remove_stale_temporaries(target.parent)
+    remove_stale_temporaries_of(target)
     tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(target.name), dir=target.parent))
     try:
         for name, blob in files.items():

@@ -19,12 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from engine_model.datasets.atomic import (
-    TMP_MARK,
     default_mode,
     remove_path,
+    remove_stale_temporaries_of,
     swap_into_place,
     temporary_prefix,
-    writer_gone,
 )
 from engine_model.validation import InputError
 
@@ -229,15 +228,6 @@ def check_report_target(out: str | Path) -> Path:
         raise InputError(f"{out}: exists and is not an earlier discover report; choose "
                          "another --out")
     return out
-
-
-def remove_stale_temporaries_of(out: Path) -> None:
-    """Delete the hidden temporaries of ``out`` (``.<name>.tmp-<host>-<pid>-*`` beside it)
-    that a writer killed before it could clean up left behind; a running writer's are kept
-    (:func:`engine_model.datasets.atomic.writer_gone`)."""
-    for q in out.parent.glob(f".{out.name}{TMP_MARK}*"):
-        if writer_gone(q.name):
-            remove_path(q)
 
 
 def write_report(d, out: str | Path) -> Path:

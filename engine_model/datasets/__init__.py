@@ -24,7 +24,7 @@ module          what is inside
 Each module's docstring describes its format. Reading data never imports CasADi or torch.
 """
 
-from .atomic import remove_stale_temporaries
+from .atomic import remove_stale_temporaries, remove_stale_temporaries_of
 from .cmapss import (
     CMAPSS_COLUMNS,
     CMAPSS_SENSORS,
@@ -78,7 +78,8 @@ __all__ = [
     "write_parquet", "read_parquet", "read_metadata", "read_columns", "write_ncmapss_h5",
     "read_ncmapss_h5", "read_dataset", "write_dataset", "summarize", "canonical_columns",
     "column_groups", "written_units", "write_unit_part", "parquet_unit_writer",
-    "remove_stale_temporaries", "hyprog_version", "SOURCE_ROW", "check_output",
+    "remove_stale_temporaries", "remove_stale_temporaries_of", "hyprog_version", "SOURCE_ROW",
+    "check_output",
     "written_by_hyprog", "output_lock",
     "CMAPSS_COLUMNS", "CMAPSS_SENSORS", "CMAPSS_SETTINGS", "CMAPSS_SOURCE", "read_cmapss",
     "read_cmapss_text", "read_rul_file",

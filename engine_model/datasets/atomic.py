@@ -10,6 +10,11 @@ and the target is left as it was. A writer killed before it could clean up leave
 ``.<name>.tmp-*`` entries, which readers ignore. The temporary's name holds the writer's host
 and process id, so :func:`remove_stale_temporaries` deletes only those whose writer is gone
 (a process of this host that no longer runs), never another running writer's file.
+
+Replacing a folder takes two renames (the old target aside to ``.<name>.old-<host>-<pid>-*``,
+the new one in); a writer killed between them leaves the previous output only in that backup,
+so a stale backup is moved back under its name when the name is free and deleted otherwise
+(:func:`remove_stale_temporaries_of`, :func:`remove_stale_temporaries`).
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ from .ownership import check_output
 
 TEMPORARY_GLOB = ".*.tmp-*"
 TMP_MARK = ".tmp-"
+BACKUP_GLOB = ".*.old-*"
+OLD_MARK = ".old-"
 
 
 def host_name() -> str:
@@ -53,9 +60,11 @@ def pid_alive(pid: int) -> bool:
 
 
 def temporary_writer(name: str) -> tuple[str, int] | None:
-    """(host, pid) of the writer of a temporary named by :func:`temporary_prefix`, or None
-    for a name without them."""
+    """(host, pid) of the writer of a temporary named by :func:`temporary_prefix` (or of a
+    backup named by :func:`swap_into_place`), or None for a name without them."""
     _, mark, rest = name.partition(TMP_MARK)
+    if not mark:
+        _, mark, rest = name.partition(OLD_MARK)
     if not mark:
         return None
     host, _, rest = rest.partition("-")
@@ -100,7 +109,8 @@ def swap_into_place(tmp: Path, target: Path) -> None:
     if target.is_file() and tmp.is_file():
         os.replace(tmp, target)  # atomic replacement of a file
         return
-    backup = target.with_name(f".{target.name}.old-{uuid.uuid4().hex[:8]}")
+    backup = target.with_name(f".{target.name}{OLD_MARK}{host_name()}-{os.getpid()}-"
+                              f"{uuid.uuid4().hex[:8]}")
     os.replace(target, backup)
     try:
         os.replace(tmp, target)
@@ -133,14 +143,41 @@ def atomic_output(target: Path, directory: bool, overwrite: bool = False) -> Ite
         raise
 
 
+def _clean_stale(entries) -> int:
+    """Remove the stale temporaries among ``entries`` and put back or remove stale backups
+    (module docstring); returns how many entries were handled."""
+    n = 0
+    for q in entries:
+        if not writer_gone(q.name):
+            continue
+        if OLD_MARK in q.name and TMP_MARK not in q.name:
+            original = q.with_name(q.name[1:q.name.index(OLD_MARK)])
+            if not original.exists() and not original.is_symlink():
+                os.replace(q, original)  # the writer died between its two renames
+                n += 1
+                continue
+        remove_path(q)
+        n += 1
+    return n
+
+
 def remove_stale_temporaries(path: str | os.PathLike) -> int:
-    """Delete the hidden temporaries that interrupted writers left under ``path`` (those whose
-    writer no longer runs: :func:`writer_gone`); a running writer's are kept. Returns how
-    many were removed."""
+    """Clean what interrupted writers left anywhere under the folder ``path`` (an output
+    folder hyprog writes into): temporaries whose writer no longer runs (:func:`writer_gone`)
+    are deleted, a running writer's are kept, and a stale backup of a replaced folder is put
+    back or deleted (module docstring). Returns how many entries were handled."""
     p = Path(path)
     if not p.is_dir():
         return 0
-    stale = [q for q in p.rglob(TEMPORARY_GLOB) if writer_gone(q.name)]
-    for q in stale:
-        remove_path(q)
-    return len(stale)
+    return _clean_stale([*p.rglob(TEMPORARY_GLOB), *p.rglob(BACKUP_GLOB)])
+
+
+def remove_stale_temporaries_of(target: str | os.PathLike) -> int:
+    """The same for the one output ``target``: only its own ``.<name>.tmp-*`` and
+    ``.<name>.old-*`` siblings, without looking anywhere else in its parent folder (which may
+    be a home directory)."""
+    t = Path(target)
+    if not t.parent.is_dir():
+        return 0
+    return _clean_stale([*t.parent.glob(f".{t.name}{TMP_MARK}*"),
+                         *t.parent.glob(f".{t.name}{OLD_MARK}*")])
