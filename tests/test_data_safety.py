@@ -441,7 +441,7 @@ def test_non_convergence_exits_1_bad_input_exits_2(runner, monkeypatch):
 
     assert_error(run(runner, "model", "point", "--alt", "0", "--mach", "0", "--tra", "100",
                      "--theta", "HPT_eff_mod=-0.5"), "--theta")
-    monkeypatch.setattr(model_cli, "get_model", lambda: NotConverging())
+    monkeypatch.setattr(model_cli, "get_model", lambda quiet=False: NotConverging())
     r = run(runner, "model", "point", "--alt", "0", "--mach", "0", "--tra", "100", "--json")
     assert_error(r, "did not converge", code=1)
 
