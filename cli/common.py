@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Annotated
 
@@ -32,6 +32,23 @@ def console(stderr: bool = False):
     from rich.console import Console
 
     return Console(stderr=stderr, highlight=False)
+
+
+@contextmanager
+def progress_bar(description: str, off: bool = False
+                 ) -> Iterator[Callable[[int, int], None] | None]:
+    """A progress bar on stderr, drawn on a terminal only and removed when done; yields the
+    callback ``update(done, total)`` for the library's ``progress`` argument, or None when
+    ``off`` (``--quiet``, ``--json``)."""
+    if off:
+        yield None
+        return
+    from rich.progress import Progress
+
+    err = console(stderr=True)
+    with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
+        task = bar.add_task(description, total=None)
+        yield lambda done, total: bar.update(task, completed=done, total=total)
 
 
 def error_line(message: str) -> str:

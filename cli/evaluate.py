@@ -8,7 +8,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, Quiet, console, echo_json, parse_units, user_errors
+from cli.common import (
+    CliError,
+    Quiet,
+    console,
+    echo_json,
+    parse_units,
+    progress_bar,
+    user_errors,
+)
 
 
 def load_model_warned(model_dir: Path):
@@ -46,7 +54,9 @@ def evaluate(
         test = parse_units(units) or [int(u) for u in meta.get("test_units") or []]
         if not test:
             raise CliError(f"{features}: the metadata names no test_units; pass --units")
-        metrics, _ = rul.evaluate(df, test, device, source=str(features))
+        with progress_bar("evaluating (windows x members)", quiet or as_json) as update:
+            metrics, _ = rul.evaluate(df, test, device, source=str(features),
+                                      progress=update)
     if as_json:
         echo_json(metrics)
         return

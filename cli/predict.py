@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import Quiet, console, echo_json, parse_units, user_errors
+from cli.common import Quiet, console, echo_json, parse_units, progress_bar, user_errors
 
 
 def per_cycle_path(out: Path) -> Path:
@@ -42,7 +42,9 @@ def predict(
     with user_errors(data):
         rul = load_model_warned(model_dir)
         df, _ = read_dataset(data)
-        pred = rul.predict(df, parse_units(units), device, source=str(data))
+        with progress_bar("predicting (windows x members)", quiet or as_json) as update:
+            pred = rul.predict(df, parse_units(units), device, source=str(data),
+                               progress=update)
         pc = per_cycle(pred)
         write_table(out, pred)
         try:

@@ -20,7 +20,7 @@ its first row and gets one prediction at its last sample.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,10 +68,12 @@ class RulModel:
         return nets
 
     def predict(self, df: pd.DataFrame, units: Sequence[int] | None = None,
-                device: str = "cpu", source: str = "table") -> pd.DataFrame:
+                device: str = "cpu", source: str = "table",
+                progress: Callable[[int, int], None] | None = None) -> pd.DataFrame:
         """Per-sample predictions (module docstring): ``unit``, ``cycle``, ``t`` and ``RUL``
         when the table has them, ``RUL_pred``, ``RUL_std`` (2+ members), ``RUL_lower`` and
-        ``RUL_upper`` (with an interval)."""
+        ``RUL_upper`` (with an interval). ``progress(done, total)`` counts windows times
+        members as they are computed."""
         if units is not None:
             missing = sorted(set(int(u) for u in units) - set(df["unit"].unique().tolist()))
             if missing:
@@ -91,8 +93,17 @@ class RulModel:
         a, b = segments(unit, np.zeros(len(unit), np.int8))
         win = make_windows(x, a, b, self.window, 1)
         dev = resolve_device(device)
+        nets = self.networks(dev)
+        total, done = len(win) * len(nets), [0]
+
+        def step(k: int) -> None:
+            done[0] += k
+            progress(done[0], total)
+
         with deterministic(dev):
-            preds = np.stack([predict_windows(net, win, dev) for net in self.networks(dev)])
+            preds = np.stack([predict_windows(net, win, dev,
+                                              progress=None if progress is None else step)
+                              for net in nets])
         keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
         out = frame[keep].iloc[win.rows].reset_index(drop=True)
         out["RUL_pred"] = preds.mean(axis=0)
@@ -103,9 +114,11 @@ class RulModel:
         return out
 
     def evaluate(self, df: pd.DataFrame, units: Sequence[int], device: str = "cpu",
-                 source: str = "table") -> tuple[dict, pd.DataFrame]:
-        """Metrics of :func:`metrics.evaluate_predictions` on ``units`` and the predictions."""
+                 source: str = "table", progress: Callable[[int, int], None] | None = None
+                 ) -> tuple[dict, pd.DataFrame]:
+        """Metrics of :func:`metrics.evaluate_predictions` on ``units`` and the predictions
+        (``progress`` as in :meth:`predict`)."""
         if TARGET not in df.columns:
             raise InputError(f"{source}: no {TARGET} column to evaluate against")
-        pred = self.predict(df, units, device, source)
+        pred = self.predict(df, units, device, source, progress)
         return evaluate_predictions(pred), pred

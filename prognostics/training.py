@@ -207,14 +207,18 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
 
 
 def predict_windows(net: nn.Module, windows: Windows, device: torch.device,
-                    batch: int = EVAL_BATCH) -> np.ndarray:
-    """Network outputs on every window, float64 (n,)."""
+                    batch: int = EVAL_BATCH,
+                    progress: Callable[[int], None] | None = None) -> np.ndarray:
+    """Network outputs on every window, float64 (n,); ``progress(k)`` after each batch of
+    ``k`` windows."""
     net.eval()
     out = []
     with torch.no_grad():
         for i in range(0, len(windows), batch):
             idx = torch.arange(i, min(i + batch, len(windows)))
             out.append(net(windows.batch(idx).to(device)).double().cpu())
+            if progress is not None:
+                progress(len(idx))
     return torch.cat(out).numpy() if out else np.zeros(0)
 
 

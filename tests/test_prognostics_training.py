@@ -319,3 +319,17 @@ def test_weights_that_do_not_fit_the_network_are_refused(trained, tmp_path):
     resign_manifest(d, config=cfg)
     with pytest.raises(InputError, match="weights do not fit the network"):
         load_model(d)
+
+
+def test_prediction_progress_counts_every_window_and_changes_nothing():
+    from prognostics.training import predict_windows
+    from prognostics.windows import make_windows
+
+    x = np.arange(300, dtype=np.float32).reshape(100, 3) / 300.0
+    win = make_windows(x, np.array([0, 40]), np.array([40, 100]), length=10)
+    net = build_model("cnn", 3, 10, seed=0)
+    seen = []
+    with_bar = predict_windows(net, win, torch.device("cpu"), batch=16, progress=seen.append)
+    assert sum(seen) == len(win) and max(seen) == 16
+    plain = predict_windows(net, win, torch.device("cpu"), batch=16)
+    np.testing.assert_array_equal(with_bar, plain)
