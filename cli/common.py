@@ -155,15 +155,17 @@ def terminate_as_exit() -> Iterator[None]:
     SWIG wrappers try each overload of a call and clear the error of those that do not match
     (their type checks call Python, e.g. ``shape`` -> ``size1``), and an exception in a
     finalizer is dropped (Python would print it as "Exception ignored"; inside the block
-    ``sys.unraisablehook`` keeps such a signal exception off stderr). Measured: about 1 in 20 Ctrl-C
-    of ``discover`` was lost that way and the run went on to the end. So after the first
-    signal an interval timer (SIGALRM, every :data:`SIGNAL_RETRY_S` s) raises the signal's
-    exception again, until the block is left; a re-raise is skipped while an exception is
-    being handled (``sys.exc_info()``: the signal's own exception running the ``finally`` and
-    ``except`` blocks it meets, which must finish their clean-up undisturbed). Interval timers
-    are not inherited by child processes. The timer is stopped, and a SIGALRM already
-    delivered is absorbed (``time.sleep(0)`` runs pending handlers) before the previous
-    handlers are restored."""
+    ``sys.unraisablehook`` keeps such a signal exception off stderr). Measured: about 1 in 20
+    Ctrl-C of ``discover`` was lost that way and the run went on to the end. So after the
+    first signal a watcher thread sends the same signal to the main thread every
+    :data:`SIGNAL_RETRY_S` s (``signal.pthread_kill``: it also interrupts a blocking wait)
+    until the block is left, and the handler raises the exception again, except while an
+    exception is being handled (``sys.exc_info()``: the signal's own exception running the
+    ``finally`` and ``except`` blocks it meets, which must finish their clean-up
+    undisturbed). A further Ctrl-C of the user is treated the same way: clean-up is never cut
+    short (SIGKILL or Ctrl-\\ end the process at once). A signal that arrives while the block
+    is being left is recorded and raises nothing. Worker processes are spawned, not forked,
+    so none inherits the handlers or the thread."""
     import signal
     import threading
     import time
@@ -171,38 +173,50 @@ def terminate_as_exit() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    leaving = []
+    leaving, stop, retry = [], threading.Event(), [False]
+    main_id = threading.get_ident()
 
-    def _first(signum, frame):
-        if TERMINATED:  # the same or another signal again (the user pressed Ctrl-C twice)
-            _again(signal.SIGALRM, frame)
+    def _watch():
+        while not stop.wait(SIGNAL_RETRY_S):
+            retry[0] = True
+            signal.pthread_kill(main_id, TERMINATED[0])
+
+    watcher = threading.Thread(target=_watch, name="hyprog-signal-retry", daemon=True)
+
+    def _on_signal(signum, frame):
+        if leaving:
+            if not TERMINATED:
+                TERMINATED.append(signum)
             return
+        if TERMINATED:  # the watcher's resend, or the user's next Ctrl-C
+            retry[0] = False
+            if sys.exc_info()[1] is not None:
+                return
+            raise _signal_exception(TERMINATED[0])
         TERMINATED.append(signum)
-        signal.setitimer(signal.ITIMER_REAL, SIGNAL_RETRY_S, SIGNAL_RETRY_S)
+        watcher.start()
         raise _signal_exception(signum)
 
-    def _again(signum, frame):
-        if leaving or not TERMINATED or sys.exc_info()[1] is not None:
-            return
-        raise _signal_exception(TERMINATED[0])
-
-    def _unraisable(u):  # a finalizer dropped the signal's exception: the timer raises it again
+    def _unraisable(u):  # a finalizer dropped the signal's exception: it is raised again
         if not (TERMINATED and isinstance(u.exc_value, (KeyboardInterrupt, SystemExit))):
             previous_hook(u)
 
     TERMINATED.clear()  # a signal of an earlier command of this process is not this one's
-    previous = {sig: signal.signal(sig, fn) for sig, fn in
-                ((signal.SIGTERM, _first), (signal.SIGINT, _first), (signal.SIGALRM, _again))}
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     previous_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
     try:
         yield
     finally:
         leaving.append(True)
-        signal.setitimer(signal.ITIMER_REAL, 0.0, 0.0)
-        time.sleep(0)  # run a SIGALRM that arrived before the timer stopped: a no-op now
-        for sig, fn in previous.items():
-            signal.signal(sig, fn)
-        sys.unraisablehook = previous_hook
+        try:
+            stop.set()
+            if watcher.is_alive():
+                watcher.join()
+            time.sleep(0)  # run a resend that arrived before the watcher stopped: a no-op now
+        finally:
+            for sig, fn in previous.items():
+                signal.signal(sig, fn)
+            sys.unraisablehook = previous_hook
 
 
 def get_model(quiet: bool = False):

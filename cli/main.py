@@ -81,6 +81,11 @@ class HyprogGroup(TyperGroup):
             if not TERMINATED:
                 raise
             rv = None  # the signal's exit (or another error an extension's call made of it)
+        if TERMINATED and standalone_mode:  # a further Ctrl-C must not cut the exit short
+            import signal
+
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, signal.SIG_IGN)
         if TERMINATED and stopped:  # Ctrl-C or SIGTERM ended the command: one line
             typer.echo(signal_line(), err=True)
             rv = exit_code_after(0)

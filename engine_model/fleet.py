@@ -288,13 +288,11 @@ def simulate_unit_task(task: dict) -> tuple:
 
 def remove_stale_output(out: Path) -> int:
     """Delete the hidden temporaries of ``out`` (``.<name>.tmp-*`` next to it) that a killed
-    writer left (only those whose writer is gone); returns how many."""
-    from .datasets.atomic import remove_path, writer_gone
+    writer left (only those whose writer is gone; a stale backup is put back,
+    :func:`datasets.atomic.remove_stale_temporaries_of`); returns how many."""
+    from .datasets.atomic import remove_stale_temporaries_of
 
-    stale = [q for q in out.parent.glob(f".{out.name}.tmp-*") if writer_gone(q.name)]
-    for q in stale:
-        remove_path(q)
-    return len(stale)
+    return remove_stale_temporaries_of(out)
 
 
 def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
@@ -429,7 +427,9 @@ def _done_units(stage: Path) -> dict[int, dict]:
 def _write_info(stage: Path, unit: int, info: dict) -> None:
     folder = stage / UNIT_INFO_DIR
     folder.mkdir(exist_ok=True)
-    tmp = folder / f".{unit}.json.tmp-{os.getpid()}"
+    from .datasets.atomic import temporary_prefix
+
+    tmp = folder / f"{temporary_prefix(f'{unit}.json')}{os.urandom(4).hex()}"
     tmp.write_text(json.dumps(info))
     os.replace(tmp, folder / f"{unit}.json")
 

@@ -180,6 +180,20 @@ def train_config(run: Run, cfg: ExperimentConfig, test_units: Sequence[int]) -> 
                        device=cfg.device).resolved()
 
 
+def check_experiment_out(out: Path) -> None:
+    """``out`` is absent, empty (hidden entries aside) or an experiment's folder (it holds
+    ``runs/``): the experiment writes, resumes and cleans up only there, never in a folder of
+    other files (InputError naming it)."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(f"{out}: exists and is not a directory; choose another --out")
+    if (out / "runs").is_dir() or not any(not p.name.startswith(".") for p in out.iterdir()):
+        return
+    raise InputError(f"{out}: holds files that are not an experiment's (no runs/ folder); "
+                     "choose a new or empty --out")
+
+
 def run_key(run: Run, tc: TrainConfig, fingerprint: str) -> str:
     d = tc.to_dict()
     d.pop("device")
@@ -271,6 +285,7 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
     log = log or (lambda s: None)
     cfg = config.checked()
     out = Path(out)
+    check_experiment_out(out)
     meta = metadata or {}
     present = np.unique(df["unit"].to_numpy()).tolist()
     dev, test = development_and_test_units(present, meta, source=source)

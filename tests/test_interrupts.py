@@ -20,6 +20,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -226,8 +227,30 @@ def test_an_interrupt_that_code_swallows_is_raised_again():
         _busy(2.0)
         raise AssertionError("the swallowed interrupt was not raised again")
     assert TERMINATED == [signal.SIGINT]
-    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert not [t for t in threading.enumerate() if t.name == "hyprog-signal-retry"]
+
+
+def test_a_signal_while_the_block_is_left_is_recorded_and_raises_nothing(monkeypatch):
+    """A Ctrl-C that lands in the block's own clean-up (here: inside the call that runs
+    pending handlers) is recorded; nothing is raised, armed or left installed."""
+    import time as time_module
+
+    from cli.common import TERMINATED, terminate_as_exit
+
+    real_sleep = time_module.sleep
+
+    def sleep(seconds):
+        os.kill(os.getpid(), signal.SIGINT)
+        real_sleep(seconds)
+
+    with terminate_as_exit():
+        monkeypatch.setattr(time_module, "sleep", sleep)
+    monkeypatch.setattr(time_module, "sleep", real_sleep)
+    _busy(0.2)  # a late resend would raise here
+    assert TERMINATED == [signal.SIGINT]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
 
 
 def test_an_interrupt_a_finalizer_drops_is_raised_again_and_not_printed(capsys):

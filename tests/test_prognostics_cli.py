@@ -231,6 +231,14 @@ def test_experiment_bad_options(runner, features_parquet, tmp_path):
     assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
                           tmp_path / "e", "--ablations", "small"), "16")  # default 16,18,20
     assert_nothing_left(tmp_path, "e")
+    # a folder of other files is refused before anything is written or cleaned in it
+    other = tmp_path / "home"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    (other / ".bashrc.old-2019").write_text("a user's backup")
+    assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+                          other), "not an experiment's")
+    assert sorted(p.name for p in other.iterdir()) == [".bashrc.old-2019", "notes.txt"]
 
 
 def test_cmapss_files_import_train_and_evaluate_unchanged(runner, tmp_path):

@@ -20,6 +20,7 @@ so a stale backup is moved back under its name when the name is free and deleted
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import socket
 import tempfile
@@ -59,28 +60,27 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+#: A hyprog temporary or backup: ``.<name>.tmp-<host>-<pid>-<random>[<suffix>]`` or
+#: ``.<name>.old-<host>-<pid>-<random>``, read from the right (``<name>`` may itself contain
+#: ``.tmp-`` or ``-``; ``<host>`` has no ``-``, :func:`host_name`).
+HYPROG_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old)-(?P<host>[^-/]+)-"
+                              r"(?P<pid>\d+)-(?P<random>[A-Za-z0-9_]+)(?P<suffix>\.[^-/]*)?$")
+
+
 def temporary_writer(name: str) -> tuple[str, int] | None:
     """(host, pid) of the writer of a temporary named by :func:`temporary_prefix` (or of a
-    backup named by :func:`swap_into_place`), or None for a name without them."""
-    _, mark, rest = name.partition(TMP_MARK)
-    if not mark:
-        _, mark, rest = name.partition(OLD_MARK)
-    if not mark:
-        return None
-    host, _, rest = rest.partition("-")
-    pid, _, _ = rest.partition("-")
-    try:
-        return host, int(pid)
-    except ValueError:
-        return None
+    backup named by :func:`swap_into_place`), or None for any other name."""
+    m = HYPROG_TEMPORARY.match(name)
+    return None if m is None else (m["host"], int(m["pid"]))
 
 
 def writer_gone(name: str) -> bool:
-    """True when the temporary ``name`` was left by a writer that no longer runs (a process of
-    this host that is gone, or a name without a writer: an older hyprog's)."""
+    """True when ``name`` is a hyprog temporary or backup whose writer, a process of this
+    host, no longer runs. Any other name (another program's file, a user's backup) is never
+    taken for one."""
     who = temporary_writer(name)
     if who is None:
-        return True
+        return False
     host, pid = who
     return host == host_name() and not pid_alive(pid)
 
@@ -102,7 +102,12 @@ def default_mode(directory: bool) -> int:
 
 
 def swap_into_place(tmp: Path, target: Path) -> None:
-    """Move ``tmp`` to ``target``; an existing target is moved aside first and removed after."""
+    """Move ``tmp`` to ``target``; an existing target is moved aside first and removed after.
+
+    Both renames are inside one ``try``: an exception (a signal's included) after the first
+    puts the old target back. The backup is renamed to a temporary before it is deleted, so a
+    writer killed while deleting it leaves a temporary (deleted by the next writer), never a
+    half-deleted backup that could be put back."""
     if not target.exists() and not target.is_symlink():
         os.replace(tmp, target)
         return
@@ -111,13 +116,16 @@ def swap_into_place(tmp: Path, target: Path) -> None:
         return
     backup = target.with_name(f".{target.name}{OLD_MARK}{host_name()}-{os.getpid()}-"
                               f"{uuid.uuid4().hex[:8]}")
-    os.replace(target, backup)
     try:
+        os.replace(target, backup)
         os.replace(tmp, target)
     except BaseException:
-        os.replace(backup, target)
+        if backup.exists() and not target.exists() and not target.is_symlink():
+            os.replace(backup, target)
         raise
-    remove_path(backup)
+    trash = target.with_name(f"{temporary_prefix(target.name)}{uuid.uuid4().hex[:8]}")
+    os.replace(backup, trash)
+    remove_path(trash)
 
 
 @contextmanager
@@ -143,15 +151,19 @@ def atomic_output(target: Path, directory: bool, overwrite: bool = False) -> Ite
         raise
 
 
-def _clean_stale(entries) -> int:
-    """Remove the stale temporaries among ``entries`` and put back or remove stale backups
-    (module docstring); returns how many entries were handled."""
+def _clean_stale(entries, name: str | None = None) -> int:
+    """Remove the stale temporaries among ``entries`` (of the output ``name`` only, when
+    given) and put back or remove stale backups (module docstring); returns how many entries
+    were handled."""
     n = 0
     for q in entries:
-        if not writer_gone(q.name):
-            continue
-        if OLD_MARK in q.name and TMP_MARK not in q.name:
-            original = q.with_name(q.name[1:q.name.index(OLD_MARK)])
+        m = HYPROG_TEMPORARY.match(q.name)
+        if m is None or (name is not None and m["name"] != name):
+            continue  # not a hyprog temporary, or another output's
+        if not writer_gone(q.name) or not (q.exists() or q.is_symlink()):
+            continue  # a running writer's, or gone with an entry handled before
+        if m["kind"] == "old":
+            original = q.with_name(m["name"])
             if not original.exists() and not original.is_symlink():
                 os.replace(q, original)  # the writer died between its two renames
                 n += 1
@@ -180,4 +192,4 @@ def remove_stale_temporaries_of(target: str | os.PathLike) -> int:
     if not t.parent.is_dir():
         return 0
     return _clean_stale([*t.parent.glob(f".{t.name}{TMP_MARK}*"),
-                         *t.parent.glob(f".{t.name}{OLD_MARK}*")])
+                         *t.parent.glob(f".{t.name}{OLD_MARK}*")], t.name)
