@@ -164,11 +164,15 @@ def terminate_as_exit() -> Iterator[None]:
     ``finally`` and ``except`` blocks it meets, which must finish their clean-up
     undisturbed). A further Ctrl-C of the user is treated the same way: clean-up is never cut
     short (SIGKILL or Ctrl-\\ end the process at once). A signal that arrives while the block
-    is being left is recorded and raises nothing. Worker processes are spawned, not forked,
-    so none inherits the handlers or the thread."""
+    is being left is recorded and raises nothing, and one inside a critical section (a lock
+    being taken, a folder being swapped: :mod:`engine_model.datasets.critical`) is raised just
+    after it. Worker processes are spawned, not forked, so none inherits the handlers or the
+    thread."""
     import signal
     import threading
     import time
+
+    from engine_model.datasets.critical import in_critical_section
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -187,6 +191,12 @@ def terminate_as_exit() -> Iterator[None]:
         if leaving:
             if not TERMINATED:
                 TERMINATED.append(signum)
+            return
+        if in_critical_section():  # a lock being taken, a folder being swapped: the
+            if not TERMINATED:     # watcher raises it just after (engine_model.datasets.
+                TERMINATED.append(signum)  # critical)
+                watcher.start()
+            retry[0] = False
             return
         if TERMINATED:  # the watcher's resend, or the user's next Ctrl-C
             retry[0] = False

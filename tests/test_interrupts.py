@@ -272,3 +272,20 @@ def test_an_interrupt_a_finalizer_drops_is_raised_again_and_not_printed(capsys):
         _busy(2.0)
         raise AssertionError(f"the dropped interrupt was not raised again ({ref})")
     assert "Exception ignored" not in capsys.readouterr().err
+
+
+def test_a_signal_in_a_critical_section_is_raised_just_after_it():
+    """A Ctrl-C while a lock is being taken or a folder swapped does not split the step: the
+    section finishes, then the interrupt comes."""
+    from cli.common import terminate_as_exit
+    from engine_model.datasets.critical import critical_section
+
+    finished = []
+    with pytest.raises(KeyboardInterrupt), terminate_as_exit():
+        with critical_section():
+            os.kill(os.getpid(), signal.SIGINT)
+            _busy(0.3)
+            finished.append(True)
+        _busy(2.0)
+        raise AssertionError("the deferred interrupt was not raised after the section")
+    assert finished == [True]

@@ -29,6 +29,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from .critical import critical_section
 from .ownership import check_output
 
 TEMPORARY_GLOB = ".*.tmp-*"
@@ -117,8 +118,9 @@ def swap_into_place(tmp: Path, target: Path) -> None:
     backup = target.with_name(f".{target.name}{OLD_MARK}{host_name()}-{os.getpid()}-"
                               f"{uuid.uuid4().hex[:8]}")
     try:
-        os.replace(target, backup)
-        os.replace(tmp, target)
+        with critical_section():  # a signal waits until both renames are done
+            os.replace(target, backup)
+            os.replace(tmp, target)
     except BaseException:
         if backup.exists() and not target.exists() and not target.is_symlink():
             os.replace(backup, target)

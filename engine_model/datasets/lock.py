@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ..validation import InputError
 from .atomic import host_name, pid_alive
+from .critical import critical_section
 
 LOCK_SUFFIX = ".hyprog-lock"
 
@@ -75,19 +76,23 @@ def acquire(path: str | os.PathLike) -> Path:
 
 def release(lock: Path) -> None:
     """Remove a lock this process holds (another process's lock is left alone)."""
-    who = read_lock(lock)
-    if who is not None and who == (host_name(), os.getpid()):
-        lock.unlink(missing_ok=True)
+    with critical_section():
+        who = read_lock(lock)
+        if who is not None and who == (host_name(), os.getpid()):
+            lock.unlink(missing_ok=True)
 
 
 @contextmanager
 def output_lock(path: str | os.PathLike) -> Iterator[Path]:
     """Hold the lock of output ``path`` for the block (module docstring)."""
-    lock = acquire(path)
+    held = None
     try:
-        yield lock
+        with critical_section():  # a signal cannot fall between creating and holding it
+            held = acquire(path)
+        yield held
     finally:
-        release(lock)
+        if held is not None:
+            release(held)
 
 
 __all__ = ["LOCK_SUFFIX", "acquire", "lock_path", "output_lock", "read_lock", "release"]
