@@ -172,7 +172,9 @@ def terminate_as_exit() -> Iterator[None]:
     import threading
     import time
 
-    from engine_model.datasets.critical import in_critical_section
+    def in_critical_section() -> bool:  # without importing engine_model (--help stays light):
+        critical = sys.modules.get("engine_model.datasets.critical")  # no section without it
+        return critical is not None and critical.in_critical_section()
 
     if threading.current_thread() is not threading.main_thread():
         yield
