@@ -14,10 +14,12 @@ from typer.core import TyperGroup
 
 from cli.common import (
     CliError,
+    Quiet,
     console,
     echo_json,
     parse_list,
     parse_units,
+    progress_bar,
     user_errors,
     warn,
 )
@@ -98,8 +100,6 @@ Mode = Annotated[str | None, typer.Option(
 Hessian = Annotated[str | None, typer.Option(
     "--hessian", help="mhe / map_cycle: gauss-newton or exact (default: gauss-newton).")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON report only.")]
-Quiet = Annotated[bool, typer.Option("--quiet", help="No progress bar (it is drawn on a "
-                                     "terminal only).")]
 
 
 @app.command("run")
@@ -131,19 +131,9 @@ def run(
         opts = _options(method, window, stride, mode, hessian)
         unit_list = parse_units(units)
         setup = setup_with_drift_mle(drift, data, setup, unit_list)
-        if as_json or quiet:
+        with progress_bar(f"calibrating ({method})", as_json or quiet) as update:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
-                                  keep_results=False)
-        else:
-            from rich.progress import Progress
-
-            err = console(stderr=True)
-            with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
-                task = bar.add_task(f"calibrating ({method})", total=None)
-                res = calibrate_fleet(
-                    data, method, setup, opts, unit_list, jobs, scheduler, out,
-                    keep_results=False,
-                    progress=lambda d, n: bar.update(task, completed=d, total=n))
+                                  keep_results=False, progress=update)
     warned = sorted({str(w.message) for w in caught
                      if issubclass(w.category, UnobservableWarning)}) + list(res.warnings)
     nonconverged = sum(v["n_nonconverged"] for v in res.units.values())
@@ -203,18 +193,10 @@ def compare_cmd(
             estimator_class(m)
         mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
         opts = {"mhe": mhe, "map_cycle": _given(hessian=hessian)}
-        if as_json or quiet:
-            report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler)
-        else:
-            from rich.progress import Progress
-
-            err = console(stderr=True)
-            with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
-                task = bar.add_task("comparing", total=None)
-                report = compare(
-                    data, names, setup, opts, parse_units(units), jobs, scheduler,
-                    progress=lambda m, d, n: bar.update(task, description=f"comparing: {m}",
-                                                        completed=d, total=n))
+        with progress_bar("comparing", as_json or quiet) as update:
+            report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler,
+                             progress=None if update is None else
+                             (lambda m, d, n: update(d, n, f"comparing: {m}")))
     if as_json:
         echo_json(report)
         return

@@ -36,10 +36,10 @@ def console(stderr: bool = False):
 
 @contextmanager
 def progress_bar(description: str, off: bool = False
-                 ) -> Iterator[Callable[[int, int], None] | None]:
+                 ) -> Iterator[Callable[..., None] | None]:
     """A progress bar on stderr, drawn on a terminal only and removed when done; yields the
-    callback ``update(done, total)`` for the library's ``progress`` argument, or None when
-    ``off`` (``--quiet``, ``--json``)."""
+    callback ``update(done, total, description=None)`` for the library's ``progress``
+    argument, or None when ``off`` (``--quiet``, ``--json``)."""
     if off:
         yield None
         return
@@ -48,7 +48,12 @@ def progress_bar(description: str, off: bool = False
     err = console(stderr=True)
     with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
         task = bar.add_task(description, total=None)
-        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+        def update(done: int, total: int, description: str | None = None) -> None:
+            extra = {} if description is None else {"description": description}
+            bar.update(task, completed=done, total=total, **extra)
+
+        yield update
 
 
 def error_line(message: str) -> str:
