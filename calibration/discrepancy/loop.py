@@ -313,7 +313,8 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
             f["spec"] = c.spec(ph)
     leftover = structure(final.lin.e, [(u, ok) for u, ok in zip(units, final.lin.ok,
                                                                 strict=True)],
-                         sensors, o.alpha, problem.n_theta + len(final.free))
+                         sensors, o.alpha, problem.n_theta + len(final.free),
+                         [s in noise.get("channels", {}) for s in sensors])
     if masks is not None:
         # effect parameters estimated without the held-out flights, theta fitted on every
         # flight (a per-flight nuisance), residual of the held-out flights (confirm docstring)
