@@ -1,0 +1,136 @@
+"""Is the discrepancy loop's screen calibrated? Its score statistics at the *true* theta on
+no-effect fleets, against their nominal null distribution.
+
+    python benchmarks/discrepancy_null_calibration.py --seeds 1000-1399 --seeds 5000-5399
+
+For each no-effect ``tiny`` fleet (one unit, ``1 + seed % 4``, the benchmark's
+``benchmarks/discrepancy.py`` no-effect fleets for seeds 1000 + k), the model is linearised at
+the true theta of every cycle (which the simulated data carry) with every candidate
+parameter at 0. The residual is then the measurement noise alone, and every candidate's score
+``s = J_phi^T e`` is exactly Gaussian with covariance ``J_phi^T J_phi`` if the noise model
+``R`` is right; ``T = s^T (J^T J)^-1 s`` is chi-square with the candidate's number of
+parameters (chi-bar-squared for a one-sided candidate: the screen's own statistic and
+p-value, :mod:`calibration.discrepancy.score_test`). This
+separates two causes of false discoveries: a statistic that is not calibrated (tail rates
+above nominal) and the estimation of theta (false discoveries where the statistic at the
+truth stays below the threshold). Printed: the share of tests below each nominal level
+against its expectation, and the fleets whose smallest p-value at the truth is below the
+family-wise critical value of :mod:`calibration.discrepancy.max_stat` (computed from the same
+covariance). Runs are cached (JSON lines) so that a rerun continues.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import poisson
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from calibration.discrepancy.candidates import CandidateModel, build_candidates  # noqa: E402
+from calibration.discrepancy.max_stat import screen  # noqa: E402
+from calibration.discrepancy.null_fit import Problem, unit_data  # noqa: E402
+from calibration.discrepancy.score_test import Scores  # noqa: E402
+from calibration.setup import CalibrationSetup  # noqa: E402
+from engine_model import fleet  # noqa: E402
+from engine_model.shared_model import default_model  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+LEVELS = (1e-2, 1e-3, 1e-4)
+
+
+def seed_range(text: str) -> list[int]:
+    a, _, b = text.partition("-")
+    return list(range(int(a), int(b or a) + 1))
+
+
+def one_fleet(base, setup, seed: int, cache: dict) -> dict:
+    unit = 1 + seed % 4
+    df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base)
+    u = unit_data(df, setup)
+    if "cm" not in cache:
+        carried, cands = build_candidates(None, u.series.sensors, True)
+        cache["cm"], cache["cands"] = CandidateModel(carried, design=base.design), cands
+    cm, cands = cache["cm"], cache["cands"]
+    pr = Problem([u], setup, cm)
+    true = np.zeros((u.n_cycles, pr.k))
+    np.add.at(true, u.cyc, df[list(setup.params)].to_numpy(float))
+    true /= np.bincount(u.cyc, minlength=u.n_cycles)[:, None]
+    lin = pr.linearize([true], np.zeros(pr.n_phi))
+    tested = np.arange(pr.n_phi)
+    sc = Scores(tested, -lin.g_phi, lin.D, np.diag(lin.D).copy(),
+                np.zeros((pr.n_theta, pr.n_phi)), np.arange(pr.n_theta))
+    res = screen(sc, cands, 0.01, 20000, seed)
+    rec = {"seed": seed, "unit": unit, "samples": int(u.n),
+           "chi2_per_dof": float(lin.sse / (u.n * pr.m)), "p_crit": res.p_crit, "tests": {}}
+    for i, c in enumerate(cands):
+        rec["tests"][c.name] = [float(res.T[i]), int(res.df[i]), float(res.p[i])]
+    return rec
+
+
+def table(runs: list, label: str) -> list[str]:
+    p = np.array([v[2] for r in runs for v in r["tests"].values()])
+    n_f = len(runs)
+    out = [f"\n### {label}: {n_f} fleets, {p.size} tests\n",
+           "| nominal level | tests below | expected | P(at least this many) |",
+           "|---|---|---|---|"]
+    for a in LEVELS:
+        k = int(np.sum(p < a))
+        out.append(f"| {a:g} | {k} ({k / p.size:.3%}) | {a * p.size:.1f} | "
+                   f"{poisson.sf(k - 1, a * p.size):.2g} |")
+    hits = [r for r in runs if min(v[2] for v in r["tests"].values()) <= r["p_crit"]]
+    k = len(hits)
+    out.append(f"\nfleets whose smallest p-value at the true theta is below the family-wise "
+               f"critical value (alpha 0.01): {k} of {n_f} ({k / max(n_f, 1):.1%}); "
+               f"P(at least {k} | 1 %) = {poisson.sf(k - 1, 0.01 * n_f):.2g}")
+    for r in hits:
+        name = min(r["tests"], key=lambda q: r["tests"][q][2])
+        out.append(f"- seed {r['seed']} (unit {r['unit']}): {name}, T = "
+                   f"{r['tests'][name][0]:.1f} on {r['tests'][name][1]} df, "
+                   f"p = {r['tests'][name][2]:.2g} (critical {r['p_crit']:.2g})")
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", action="append", required=True,
+                    help="a seed range, e.g. 1000-1399 (repeat for several blocks)")
+    ap.add_argument("--runs", default=str(RESULTS / "discrepancy_null_calibration.jsonl"))
+    ap.add_argument("--table", default=str(RESULTS / "discrepancy_null_calibration.md"))
+    a = ap.parse_args(argv)
+    path = Path(a.runs)
+    done = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                done[r["seed"]] = r
+    base, setup, cache = default_model(), CalibrationSetup(), {}
+    blocks = []
+    for text in a.seeds:
+        runs = []
+        for seed in seed_range(text):
+            if seed not in done:
+                done[seed] = one_fleet(base, setup, seed, cache)
+                with path.open("a") as fh:
+                    fh.write(json.dumps(done[seed]) + "\n")
+            runs.append(done[seed])
+        blocks.append((text, runs))
+    lines = [f"# Score statistics at the true theta on no-effect fleets ({platform.node()})",
+             "", "`python benchmarks/discrepancy_null_calibration.py " +
+             " ".join(f"--seeds {t}" for t in a.seeds) + "`"]
+    for text, runs in blocks:
+        lines += table(runs, f"seeds {text}")
+    if len(blocks) > 1:
+        lines += table([r for _, runs in blocks for r in runs], "all")
+    print("\n".join(lines))
+    Path(a.table).write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
