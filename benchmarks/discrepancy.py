@@ -47,6 +47,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import binom, binomtest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -254,7 +255,7 @@ def main(argv=None):
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(runs, indent=1))
     lines = table(runs, mds)
-    if a.report_only:
+    if a.report_only and len(runs) < len(cells):
         lines.append(f"\npartial: {len(runs)} of {len(cells)} runs ({a.runs})")
     print("\n".join(lines))
     Path(a.table).write_text("\n".join(lines) + "\n")
@@ -290,10 +291,16 @@ def table(runs: list, mds: dict | None = None) -> list:
                    f"{rb:.2f} -> {ra:.2f} | {tb:.2e} -> {ta:.2e} | {verdicts} |")
     nulls = [r for r in runs if r["truth"] is None]
     if nulls:
-        fd = np.mean([bool(r["found"]) for r in nulls])
-        out.append(f"\nno-effect fleets: {len(nulls)}, false discoveries (an effect added) "
-                   f"{fd:.0%}, 'unknown effect' "
-                   f"{np.mean([r['verdict'] == 'unknown effect' for r in nulls]):.0%}")
+        out.append(f"\nno-effect fleets: {len(nulls)}")
+        for what, hit in (("false discoveries (an effect added)", lambda r: bool(r["found"])),
+                          ("'unknown effect'", lambda r: r["verdict"] == "unknown effect")):
+            k = sum(map(hit, nulls))
+            ci = binomtest(k, len(nulls)).proportion_ci(0.95)  # Clopper-Pearson
+            out.append(f"- {what}: {k} ({k / len(nulls):.2%}; 95 % CI {ci.low:.2%}-"
+                       f"{ci.high:.2%}; P(at least {k} | 1 %) = "
+                       f"{binom.sf(k - 1, len(nulls), 0.01):.2g}): " + ", ".join(
+                           f"seed {r['seed']} {'+'.join(r['found']) or r['verdict']}"
+                           for r in nulls if hit(r)))
     refs = [r for r in runs if r["truth"] == "mds_reference"]
     if mds:
         out.append(f"\nminimum detectable size (80 % power, family-wise alpha; median of "
