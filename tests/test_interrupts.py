@@ -218,6 +218,7 @@ def test_an_interrupt_that_code_swallows_is_raised_again():
     lose the Ctrl-C: the block's timer raises it again, and nothing is left armed after."""
     from cli.common import TERMINATED, terminate_as_exit
 
+    before = signal.getsignal(signal.SIGINT)  # SIG_IGN when pytest runs as a background job
     with pytest.raises(KeyboardInterrupt), terminate_as_exit():
         try:
             os.kill(os.getpid(), signal.SIGINT)
@@ -227,7 +228,7 @@ def test_an_interrupt_that_code_swallows_is_raised_again():
         _busy(2.0)
         raise AssertionError("the swallowed interrupt was not raised again")
     assert TERMINATED == [signal.SIGINT]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is before
     assert not [t for t in threading.enumerate() if t.name == "hyprog-signal-retry"]
 
 
@@ -244,13 +245,13 @@ def test_a_signal_while_the_block_is_left_is_recorded_and_raises_nothing(monkeyp
         os.kill(os.getpid(), signal.SIGINT)
         real_sleep(seconds)
 
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     with terminate_as_exit():
         monkeypatch.setattr(time_module, "sleep", sleep)
     monkeypatch.setattr(time_module, "sleep", real_sleep)
     _busy(0.2)  # a late resend would raise here
     assert TERMINATED == [signal.SIGINT]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
 def test_an_interrupt_a_finalizer_drops_is_raised_again_and_not_printed(capsys):
