@@ -169,8 +169,8 @@ def main(argv=None):
                     "loop's default list)")
     ap.add_argument("--cmapss", help="run on C-MAPSS operating-point means instead (e.g. "
                     "data_samples/cmapss-fd002-operating-points.csv)")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" /
-                                          "discrepancy.json"))
+    ap.add_argument("--out", help="also write the runs of this table as one JSON array "
+                    "(the --runs file already holds every run)")
     ap.add_argument("--runs", default=str(Path(__file__).parent / "results" /
                                            "discrepancy_runs.jsonl"),
                     help="cache of finished runs (JSON lines): a rerun skips them")
@@ -252,8 +252,9 @@ def main(argv=None):
         r = run_cell(*cell)
         if r is not None:
             runs.append(r)
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(runs, indent=1))
+    if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.out).write_text(json.dumps(runs, indent=1))
     lines = table(runs, mds)
     if a.report_only and len(runs) < len(cells):
         lines.append(f"\npartial: {len(runs)} of {len(cells)} runs ({a.runs})")
