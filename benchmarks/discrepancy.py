@@ -53,9 +53,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibration import CalibrationSetup  # noqa: E402
 from calibration.discrepancy import DiscoverOptions, discover  # noqa: E402
-from calibration.discrepancy.candidates import steady_effects  # noqa: E402
-from engine_model import EngineModel, fleet, sensor_noise  # noqa: E402
-from engine_model.effects import parse_effect_spec  # noqa: E402
+from calibration.discrepancy.synthetic import unit_with_effect  # noqa: E402
+from engine_model import fleet  # noqa: E402
 from engine_model.shared_model import default_model  # noqa: E402
 
 # effect -> (spec at size 1, the parameter that scales)
@@ -72,21 +71,7 @@ EFFECTS = {
 
 def simulate(base, name: str, size: float, unit: int, seed: int):
     spec, typical = EFFECTS[name]
-    eff = parse_effect_spec(spec.format(x=size * typical))
-    if name.startswith("sensor_"):
-        df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base, noise_scale=0.0)
-        ch = eff.channel
-        p = {q.name: eff.values[q.name] for q in eff.params}
-        if "cycle" in p:
-            p["cycle"] = df["cycle"].to_numpy(float)
-        df[ch] = eff.apply("sensor:" + ch, df[ch].to_numpy(float), p, {})
-        rng = np.random.default_rng([seed, unit, 99])
-        return sensor_noise.add_noise(df, rng), eff
-    # the candidate model's variant (same compiled code) with this effect switched on
-    truth = EngineModel(design=base.design, effects=steady_effects(
-        None, {eff.name: {q.name: eff.values[q.name] for q in eff.params}}))
-    df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=truth, effects=[eff])
-    return df, eff
+    return unit_with_effect(base, spec.format(x=size * typical), unit, seed)
 
 
 def one_run(base, frames, opts, truth_name=None) -> dict:
