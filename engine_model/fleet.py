@@ -286,15 +286,6 @@ def simulate_unit_task(task: dict) -> tuple:
     return task["spec"].unit, df, info
 
 
-def remove_stale_output(out: Path) -> int:
-    """Delete the hidden temporaries of ``out`` (``.<name>.tmp-*`` next to it) that a killed
-    writer left (only those whose writer is gone; a stale backup is put back,
-    :func:`datasets.atomic.remove_stale_temporaries_of`); returns how many."""
-    from .datasets.atomic import remove_stale_temporaries_of
-
-    return remove_stale_temporaries_of(out)
-
-
 def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
              units: Sequence[int] | None = None, rate_hz: float | None = None, seed: int = 0,
              effects: Sequence = (), record: str | None = None, fmt: str = "parquet",
@@ -471,11 +462,11 @@ def _write(produce, specs, meta, out, fmt, progress, overwrite):
         if out is None:
             return df, meta, finish(report)
         out = Path(out)
-        remove_stale_output(out)
+        datasets.remove_stale_temporaries_of(out)
         datasets.write_ncmapss_h5(df, out, meta, overwrite=overwrite)
         return out, finish(report)
     out = Path(out)
-    remove_stale_output(out)
+    datasets.remove_stale_temporaries_of(out)
     stage = partial_dir(out, meta)
     for other in out.parent.glob(f".{out.name}{PARTIAL_MARK}*"):
         if other != stage:  # an interrupted run with other settings: not continued

@@ -39,17 +39,9 @@ SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
 FAST = dict(n_draws=5000)  # warm start: coarse (the default)
 
 
-def _truth(model, **values):
-    """The candidate model's variant (the same compiled code) with the bleed switched on."""
-    return EngineModel(design=model.design,
-                       effects=steady_effects(None, {"customer_bleed": values}))
-
-
 @pytest.fixture(scope="module")
 def bleed_fleet(model):
-    truth = _truth(model, f0=BLEED)
-    df, _, _ = fleet.simulate("tiny", units=[1], seed=7, model=truth,
-                              effects=[parse_effect_spec(f"customer_bleed:f0={BLEED}")])
+    df, _ = unit_with_effect(model, f"customer_bleed:f0={BLEED}", unit=1, seed=7)
     return df
 
 
