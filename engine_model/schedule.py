@@ -47,6 +47,7 @@ import casadi as ca
 import numpy as np
 
 from .components import smooth_step
+from .hermite import fritsch_carlson_slopes, hermite
 from .units import T_STD_K
 
 LIMIT_SHARPNESS = 5.0  # 1 / % of corrected speed, N1 red line on the schedule
@@ -55,12 +56,6 @@ CONTROL_BAND = 0.002  # half-width of the limiter blending, in controller-error 
 
 def _is_casadi(x) -> bool:
     return isinstance(x, (ca.SX, ca.MX, ca.DM))
-
-
-def _where(cond, a, b):
-    if _is_casadi(cond) or _is_casadi(a) or _is_casadi(b):
-        return ca.if_else(cond, a, b)
-    return np.where(cond, a, b)
 
 
 def _sqrt(x):
@@ -113,29 +108,15 @@ class ThrottleSchedule:
         pts = ((self.tra_idle, self.pct_idle),) + tuple(self.knots)
         t = np.array([p[0] for p in pts], float)
         y = np.array([p[1] for p in pts], float)
-        d = np.diff(y) / np.diff(t)
-        m = np.zeros_like(y)  # zero slope at idle: joins the flat idle segment smoothly
-        for i in range(1, len(y) - 1):
-            w1 = 2 * (t[i + 1] - t[i]) + (t[i] - t[i - 1])
-            w2 = (t[i + 1] - t[i]) + 2 * (t[i] - t[i - 1])
-            m[i] = (w1 + w2) / (w1 / d[i - 1] + w2 / d[i])
-        m[-1] = d[-1] * 0.75  # flattening toward maximum speed, as real schedules do
+        # zero slope at idle (joins the flat idle segment smoothly); toward maximum speed the
+        # schedule flattens, as real schedules do: 0.75 of the last secant
+        m = fritsch_carlson_slopes(t, y, first=0.0)
+        m[-1] = m[-1] * 0.75
         return t, y, m
 
     def demand_pct(self, tra):
         """Scheduled corrected fan speed [%] for throttle-resolver angle ``tra`` [%]."""
-        t, y, m = self._points()
-        out = y[-1] + m[-1] * (tra - t[-1])  # above the last knot: linear
-        for i in range(len(t) - 2, -1, -1):
-            h = t[i + 1] - t[i]
-            s = (tra - t[i]) / h
-            h00 = (1 + 2 * s) * (1 - s) ** 2
-            h10 = s * (1 - s) ** 2
-            h01 = s**2 * (3 - 2 * s)
-            h11 = s**2 * (s - 1)
-            seg = h00 * y[i] + h10 * h * m[i] + h01 * y[i + 1] + h11 * h * m[i + 1]
-            out = _where(tra < t[i + 1], seg, out)
-        return _where(tra < t[0], y[0] + 0.0 * tra, out)
+        return hermite(tra, *self._points())
 
     def command_pct(self, tra, T2_K):
         """Commanded corrected fan speed [%]: the schedule, limited by the N1 red line."""

@@ -106,8 +106,9 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
 
     # --- variable bleed valves: booster-exit air dumped into the bypass duct at part power ---
     match = n_hpc**d.hpc.k_ch / n_lpc**d.lpc.k_ch  # HPC over booster flow capacity
-    W_vbv = components.handling_bleed_fraction(match, s.vbv_max, s.vbv_m_open,
-                                               s.vbv_m_close) * W22
+    W_vbv = hook("W_vbv", components.handling_bleed_fraction(match, s.vbv_max, s.vbv_m_open,
+                                                             s.vbv_m_close) * W22,
+                 W22=W22, n_hpc=n_hpc)
 
     # --- bypass duct and nozzle (the VBV air mixes into the bypass stream) ---
     W13 = W2 - W22

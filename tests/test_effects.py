@@ -144,6 +144,29 @@ def test_user_registered_effect(model):
     assert "test_t2_offset_p2" not in registry()
 
 
+def test_vbv_hook_sets_the_booster_bleed(model):
+    """An effect that rewrites ``W_vbv`` (as benchmarks/vbv_schedule_audit.py does to hold the
+    valves at a fixed opening) moves booster air into the bypass: the HPC gets W22 - W_vbv."""
+    class FixedVbv(Effect):
+        name = "test_fixed_vbv"
+        params = (Param("f", "-", 0.0, "VBV opening, fraction of W22"),)
+
+        def apply(self, hook, value, p, ctx):
+            return p["f"] * ctx["W22"] if hook == "W_vbv" else value
+
+    m = EngineModel(design=model.design, effects=[FixedVbv()], compiled=False)
+    w = w_rows([(0, 0, 100), (20000, 0.7, 100)])
+    for f in (0.0, 0.04):
+        ev = m.evaluate(w, p=np.full((2, 1), f))
+        assert ev.converged.all()
+        np.testing.assert_allclose(ev.W25, (1.0 - f) * ev.W22, rtol=1e-9)
+    base = model.evaluate(w)
+    np.testing.assert_allclose(base.W25, base.W22, rtol=1e-9)  # the schedule is shut here
+    np.testing.assert_allclose(m.evaluate(w, p=np.zeros((2, 1))).SmLPC, base.SmLPC, rtol=1e-7)
+    # bleeding the booster lowers its working line: more stall margin
+    assert np.all(m.evaluate(w, p=np.full((2, 1), 0.04)).SmLPC > base.SmLPC)
+
+
 def test_spec_round_trip_and_errors():
     e = parse_effect_spec("sensor_bias:channel=T50,offset=3,gain=0.01")
     assert e.name == "sensor_bias_T50" and e.values == {"offset": 3.0, "gain": 0.01}
