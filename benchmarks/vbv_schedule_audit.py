@@ -38,15 +38,15 @@ import pandas as pd
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel, atmosphere  # noqa: E402
 from engine_model.effects import Effect, Param  # noqa: E402
+from engine_model.sampling import MAX_CAS_KT  # noqa: E402
 from engine_model.shared_model import default_model  # noqa: E402
-from engine_model.units import R_PER_K  # noqa: E402
+from engine_model.units import KT_TO_MS, k_to_r  # noqa: E402
 
 OPENINGS = np.round(np.arange(0.0, 0.4001, 0.025), 3)
 SM_TARGET = 3.0  # booster stall margin [%] the schedule should keep where an opening can
 ALLOWANCE = 0.10  # a schedule's opening over the largest need it covers (relative)
 BAND = 0.0125  # band of corrected core speed n_hpc (fraction of design)
 CELL = (0.025, 0.05)  # cell of (n_hpc, NRf / NRf_des)
-CAS_LIMIT_MS = 350.0 * 0.514444
 
 
 class FixedVbv(Effect):
@@ -63,12 +63,11 @@ def envelope_grid():
     """Rows (alt ft, Mach, TRA %, dT_isa K, T2 degR) of the audit grid (module doc)."""
     rows = []
     for alt in (0, 5000, 10000, 15000, 20000, 25000, 30000, 35000, 39000, 42000):
-        m_cas = min(0.84, float(atmosphere.mach_from_cas(CAS_LIMIT_MS, alt)))
+        m_cas = min(0.84, float(atmosphere.mach_from_cas(MAX_CAS_KT * KT_TO_MS, alt)))
         m_low = 0.0 if alt == 0 else 0.25
         for mach in sorted({m_low, round(0.5 * (m_low + m_cas), 3), round(m_cas, 3)}):
             for dT in (-15.0, 0.0, 15.0):
-                Ts = float(atmosphere.isa_temperature(alt)) + dT
-                t2 = Ts * (1.0 + 0.2 * mach**2) * R_PER_K
+                t2 = k_to_r(float(atmosphere.t2_from_flight(alt, mach, dT)))
                 for tra in np.arange(20.0, 100.1, 5.0):
                     rows.append((alt, mach, tra, dT, t2))
     return np.array(rows)

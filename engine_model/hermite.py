@@ -13,13 +13,14 @@ import casadi as ca
 import numpy as np
 
 
-def _is_casadi(x) -> bool:
+def is_casadi(x) -> bool:
+    """True for a CasADi matrix or symbol (SX, MX, DM)."""
     return isinstance(x, (ca.SX, ca.MX, ca.DM))
 
 
 def where(cond, a, b):
     """``cond ? a : b`` elementwise, for numpy values or CasADi expressions."""
-    if _is_casadi(cond) or _is_casadi(a) or _is_casadi(b):
+    if is_casadi(cond) or is_casadi(a) or is_casadi(b):
         return ca.if_else(cond, a, b)
     return np.where(cond, a, b)
 

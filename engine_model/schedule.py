@@ -47,25 +47,21 @@ import casadi as ca
 import numpy as np
 
 from .components import smooth_step
-from .hermite import fritsch_carlson_slopes, hermite
+from .hermite import fritsch_carlson_slopes, hermite, is_casadi
 from .units import T_STD_K
 
 LIMIT_SHARPNESS = 5.0  # 1 / % of corrected speed, N1 red line on the schedule
 CONTROL_BAND = 0.002  # half-width of the limiter blending, in controller-error units
 
 
-def _is_casadi(x) -> bool:
-    return isinstance(x, (ca.SX, ca.MX, ca.DM))
-
-
 def _sqrt(x):
-    return ca.sqrt(x) if _is_casadi(x) else np.sqrt(x)
+    return ca.sqrt(x) if is_casadi(x) else np.sqrt(x)
 
 
 def smooth_min(a, b, k=LIMIT_SHARPNESS):
     """C-infinity minimum: ``-log(exp(-k a) + exp(-k b)) / k``, written without overflow."""
     d = a - b
-    if _is_casadi(d):
+    if is_casadi(d):
         return ca.fmin(a, b) - ca.log1p(ca.exp(-k * ca.fabs(d))) / k
     return np.minimum(a, b) - np.log1p(np.exp(-k * np.abs(d))) / k
 
@@ -83,7 +79,7 @@ def band_min(a, b, band=CONTROL_BAND):
 
 
 def _tanh(x):
-    return ca.tanh(x) if _is_casadi(x) else np.tanh(x)
+    return ca.tanh(x) if is_casadi(x) else np.tanh(x)
 
 
 @dataclass(frozen=True)
