@@ -45,6 +45,7 @@ from engine_model.units import KT_TO_MS, k_to_r  # noqa: E402
 OPENINGS = np.round(np.arange(0.0, 0.4001, 0.025), 3)
 SM_TARGET = 3.0  # booster stall margin [%] the schedule should keep where an opening can
 ALLOWANCE = 0.10  # a schedule's opening over the largest need it covers (relative)
+SCHEDULE_ALLOWANCE = 0.05  # the same, for the schedule --propose designs
 BAND = 0.0125  # band of corrected core speed n_hpc (fraction of design)
 CELL = (0.025, 0.05)  # cell of (n_hpc, NRf / NRf_des)
 
@@ -65,7 +66,8 @@ def envelope_grid():
     for alt in (0, 5000, 10000, 15000, 20000, 25000, 30000, 35000, 39000, 42000):
         m_cas = min(0.84, float(atmosphere.mach_from_cas(MAX_CAS_KT * KT_TO_MS, alt)))
         m_low = 0.0 if alt == 0 else 0.25
-        for mach in sorted({m_low, round(0.5 * (m_low + m_cas), 3), round(m_cas, 3)}):
+        slow = {0.0, 0.1, 0.2}  # in flight too: the sampled envelope starts at Mach 0
+        for mach in sorted(slow | {m_low, round(0.5 * (m_low + m_cas), 3), round(m_cas, 3)}):
             for dT in (-15.0, 0.0, 15.0):
                 t2 = k_to_r(float(atmosphere.t2_from_flight(alt, mach, dT)))
                 for tra in np.arange(20.0, 100.1, 5.0):
@@ -142,11 +144,8 @@ def conflicts(req, keys):
     return g
 
 
-def audit():
-    rows = envelope_grid()
-    print(f"audit grid: {len(rows)} points, openings {OPENINGS[0]}-{OPENINGS[-1]}",
-          file=sys.stderr)
-    t0 = time.perf_counter()
+def requirements(rows):
+    """The sweep's per-point requirements (:func:`requirement`) as a table."""
     long = sweep(rows)
     reqs = []
     for r, curve in long.groupby("row"):
@@ -155,7 +154,15 @@ def audit():
             reqs.append(dict(row=r, alt=rows[r, 0], Mach=rows[r, 1], TRA=rows[r, 2],
                              dT=rows[r, 3], need=got[0], n_hpc=got[1], nrf=got[2],
                              cap=got[3], reached=got[4]))
-    req = pd.DataFrame(reqs)
+    return pd.DataFrame(reqs)
+
+
+def audit():
+    rows = envelope_grid()
+    print(f"audit grid: {len(rows)} points, openings {OPENINGS[0]}-{OPENINGS[-1]}",
+          file=sys.stderr)
+    t0 = time.perf_counter()
+    req = requirements(rows)
     req["band"] = np.floor(req.n_hpc / BAND + 1e-9) * BAND
     req["cell_n"] = np.floor(req.n_hpc / CELL[0] + 1e-9) * CELL[0]
     req["cell_f"] = np.floor(req.nrf / CELL[1] + 1e-9) * CELL[1]
@@ -190,6 +197,69 @@ def audit():
         print(f"| {n:.3f} | " + " | ".join(cells) + " |")
 
 
+def _one_d_conflicts(v, want, cap, window=0.003):
+    """``(count, worst)``: points whose ``cap`` is below the ``want`` of a point within
+    ``window`` of ``v``, and the largest such excess."""
+    o = np.argsort(v)
+    v, want, cap = np.asarray(v)[o], np.asarray(want)[o], np.asarray(cap)[o]
+    lo, hi = np.searchsorted(v, v - window), np.searchsorted(v, v + window)
+    excess = np.array([want[a:b].max() - c for a, b, c in zip(lo, hi, cap, strict=True)])
+    bad = excess > 1e-9
+    return int(bad.sum()), float(excess[bad].max()) if bad.any() else 0.0
+
+
+def propose():
+    """Design the VBV schedule from the audit (the rules in engine_model.bleed_schedule's
+    module doc) and print it: the fan and Mach biases, the knots of F, the core-speed closing
+    band and the ground limit."""
+    from engine_model.bleed_schedule import BleedValveSchedule
+
+    req = requirements(envelope_grid())
+    want = np.where(req.reached, (1.0 + SCHEDULE_ALLOWANCE) * req.need, 0.0)
+    lo, hi = BleedValveSchedule().low_speed_band
+    fl, slow = (req.nrf >= hi).to_numpy(), (req.nrf < hi).to_numpy()
+    print(f"{len(req)} points: {fl.sum()} at corrected fan speed >= {hi}, {slow.sum()} below "
+          "(ground idle)\n")
+    scan = {}
+    for b in np.round(np.arange(0.0, 0.601, 0.05), 2):
+        for c in np.round(np.arange(0.0, 0.301, 0.025), 3):
+            v = (req.n_hpc - b * req.nrf - c * req.Mach).to_numpy()
+            scan[(b, c)] = _one_d_conflicts(v[fl], want[fl], req.cap.to_numpy()[fl])
+    best = sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))
+    print("| fan bias | Mach bias | flight points in conflict | largest excess |")
+    print("|---|---|---|---|")
+    for k in best[:8] + [(0.35, 0.0), (0.0, 0.0)]:
+        print(f"| {k[0]:.2f} | {k[1]:.3f} | {scan[k][0]} | {scan[k][1]:.3f} |")
+    bias, mach_bias = best[0]
+    v = (req.n_hpc - bias * req.nrf - mach_bias * req.Mach).to_numpy()
+    v_design = 1.0 - bias
+    step = 0.01
+    knots = []
+    for t in np.round(np.arange(np.floor(v[fl].min() / step) * step, v_design + 1e-9, step), 3):
+        early = fl & (v >= t - 0.5 * step)
+        f = 0.0 if t >= v_design - 1e-9 else np.ceil(want[early].max() / 0.005 - 1e-9) * 0.005
+        knots.append((float(t), round(float(f), 3) + 0.0))
+        if f == 0.0:  # shut from here on
+            break
+    print(f"\nfan bias {bias:.2f}, Mach bias {mach_bias:.3f}; knots (v, opening): {tuple(knots)}")
+    need, close = req.need.to_numpy(), None
+    for a in np.round(np.arange(0.86, 0.961, 0.01), 2):
+        sched = BleedValveSchedule(knots=tuple(knots), fan_bias=bias, mach_bias=mach_bias,
+                                   core_close=(a, a + 0.04))
+        f = np.asarray(sched.flight_opening(req.n_hpc.to_numpy(), req.nrf.to_numpy(),
+                                            req.Mach.to_numpy()), float).ravel()
+        short = int((fl & req.reached.to_numpy() & (f < need - 1e-9)).sum())
+        print(f"core closing band {a:.2f}-{a + 0.04:.2f}: {short} flight points short of need")
+        if short == 0 and close is None:
+            close = (float(a), float(a + 0.04))
+    print(f"\nearliest closing band with no flight point short: {close}")
+    reach = slow & req.reached.to_numpy()
+    top = need[reach].max() if reach.any() else float("nan")
+    print(f"below {hi}: {int((slow & ~req.reached.to_numpy()).sum())} points where no opening "
+          f"reaches the target, largest need where one does {top:.4f}, smallest cap "
+          f"{req.cap[slow].min():.3f}: low-speed limit {req.cap[slow].min() - 0.01:.3f}")
+
+
 def check():
     rows = envelope_grid()
     ev = default_model().evaluate(pd.DataFrame(rows[:, [0, 1, 2, 4]],
@@ -210,4 +280,6 @@ def check():
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="check the model's own schedule")
-    check() if ap.parse_args().check else audit()
+    ap.add_argument("--propose", action="store_true", help="design a schedule from the audit")
+    args = ap.parse_args()
+    check() if args.check else propose() if args.propose else audit()

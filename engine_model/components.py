@@ -65,26 +65,6 @@ def smooth_step(t):
     return a / (a + ca.exp(-1.0 / (1.0 - tc)))
 
 
-def handling_bleed_fraction(match, f_max, m_open, m_close):
-    """Variable-bleed-valve (VBV) schedule: fraction of the booster exit flow dumped into the
-    bypass duct, ``f = f_max * smooth_step((m_close - m) / (m_close - m_open))``: fully open
-    (``f_max``) at ``m <= m_open``, shut (exactly 0) at ``m >= m_close``.
-
-    The booster feeds the HPC. At part speed a multistage HPC's flow capacity falls faster
-    than the booster's (``Wc ~ n^k_ch`` with a larger exponent), which throttles the booster
-    toward surge; bleeding booster air into the fan stream lowers its working line (Walsh &
-    Fletcher, *Gas Turbine Performance*, ch. 5.2.6 and 7.2, handling bleed; the CFM56's VBVs,
-    Linke-Diesinger, *Systems of Commercial Turbofan Engines*, Springer 2008, ch. 4: fully
-    open at idle, closed at high power, scheduled on the corrected core and fan speeds). The
-    schedule variable here is that speed match itself,
-    ``m = n_HPC^k_HPC / n_LPC^k_LPC`` (1 at the design point): the ratio of the HPC's to the
-    booster's flow capacity at the current corrected speeds. The step is C-infinity, so the
-    model stays differentiable, and exactly shut at high power, so the design point has no
-    bleed.
-    """
-    return f_max * smooth_step((m_close - match) / (m_close - m_open))
-
-
 def burner(T_in, P_in, W_air, T_out, dp, eta_b, lhv=gas.LHV_KEROSENE):
     """Burner: fuel-air ratio and fuel flow needed to reach ``T_out`` from air at ``T_in``.
 

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.optimize import brentq, fsolve
 
 from . import atmosphere, components, gas
+from .bleed_schedule import BleedValveSchedule
 from .maps import CompressorMap, TurbineMap
 from .schedule import ThrottleSchedule
 from .units import LBF_TO_N, LBM_TO_KG, P_STD_PA, PSIA_TO_PA, T_STD_K, r_to_k
@@ -61,13 +62,9 @@ class DesignSpec:
     sm_fan: float = 12.0
     sm_lpc: float = 14.0
     sm_hpc: float = 25.0
-    # variable bleed valves (components.handling_bleed_fraction), scheduled on the match of
-    # HPC to booster flow capacity m (1 at design, about 0.92 at cruise): 30 % of the booster
-    # flow when the HPC swallows little (m <= 0.76: flight idle at altitude), shut at
-    # m >= 0.90 (take-off, climb and cruise; at sea-level part power m > 1)
-    vbv_max: float = 0.30
-    vbv_m_open: float = 0.76
-    vbv_m_close: float = 0.90
+    # variable bleed valves: opening on corrected core and fan speed, limited on the ground
+    # (bleed_schedule.py; designed from benchmarks/vbv_schedule_audit.py)
+    vbv: BleedValveSchedule = field(default_factory=BleedValveSchedule)
     # TRA -> corrected fan speed, idle to maximum, with the limiters (schedule.py)
     throttle: ThrottleSchedule = field(default_factory=ThrottleSchedule)
     # Compressor maps (maps.py). Class-typical shape parameters, none fitted to an operating

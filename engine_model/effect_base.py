@@ -45,8 +45,8 @@ hook (value, unit)                     context keywords
 intake loss)
 ``A18``, ``A8`` (m^2, nozzle throats)  -
 ``W_bleed_24`` (kg/s, default 0)       ``W22`` [kg/s]
-``W_vbv`` (kg/s, the VBV schedule's    ``W22`` [kg/s], ``n_hpc`` (corrected core speed,
-bleed into the bypass duct)            fraction of design)
+``W_vbv`` (kg/s, the VBV schedule's    ``W22`` [kg/s], ``n_hpc``, ``n_fan`` (corrected core
+bleed into the bypass duct)            and fan speeds, fractions of design)
 ``W_customer_bleed`` (kg/s, default 0) ``W25`` [kg/s] (HPC inlet flow), ``T30`` [K], ``P30`` [Pa]
 ``P_offtake_HP`` (W, default 0)        -
 ``sensor:<channel>`` (every output,    -

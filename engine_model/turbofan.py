@@ -105,10 +105,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     W22, T24, P24 = lpc["W"], lpc["T_out"], lpc["P_out"]
 
     # --- variable bleed valves: booster-exit air dumped into the bypass duct at part power ---
-    match = n_hpc**d.hpc.k_ch / n_lpc**d.lpc.k_ch  # HPC over booster flow capacity
-    W_vbv = hook("W_vbv", components.handling_bleed_fraction(match, s.vbv_max, s.vbv_m_open,
-                                                             s.vbv_m_close) * W22,
-                 W22=W22, n_hpc=n_hpc)
+    W_vbv = hook("W_vbv", s.vbv.fraction(n_hpc, n_fan, mach) * W22, W22=W22, n_hpc=n_hpc,
+                 n_fan=n_fan)
 
     # --- bypass duct and nozzle (the VBV air mixes into the bypass stream) ---
     W13 = W2 - W22

@@ -148,10 +148,6 @@ def test_new_engine_fan_and_hpc_have_positive_stall_margins(grid_run):
         assert (ev[sm] > 0.0).all(), (sm, ev[sm].min())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "open (issue 12): the booster's working line reaches its surge line at flight idle below "
-    "25 kft and around TRA 50-55 at 42 kft (SmLPC down to -2.2 %); the VBV schedule on the "
-    "HPC/booster flow-capacity match does not open there"))
 def test_new_engine_booster_has_positive_stall_margin(grid_run):
     _, _, ev = grid_run
     assert (ev["SmLPC"] > 0.0).all(), ev["SmLPC"].min()

@@ -1,0 +1,114 @@
+"""The variable-bleed-valve (VBV) schedule: the fraction of the booster exit flow that the valves
+dump into the bypass duct, as the engine computer sets it.
+
+Why. The booster (LPC) feeds the HPC. At part power a multistage HPC's flow capacity falls
+faster than the booster's (its rear stages choke; ``Wc ~ n^k_ch`` with a larger exponent), so
+the HPC throttles the booster toward surge; opening valves between them lowers the booster's
+working line (Walsh & Fletcher, *Gas Turbine Performance*, 2nd ed., ch. 5.2.6 and 7.2, handling
+bleed). On the CFM56 the VBVs are open at idle and shut at high power, scheduled on the corrected
+core speed ``N2K25`` with a fan-speed term (Linke-Diesinger, *Systems of Commercial Turbofan
+Engines*, Springer 2008, ch. 4 and 8).
+
+Schedule variable. ``v = n_HPC - fan_bias * n_fan``: corrected core speed (on T24, fraction of
+design) biased by the corrected fan speed (on T2): the valves close at a core speed that rises
+with fan speed, ``n_HPC = v_close + fan_bias * n_fan``. Both are quantities a FADEC has (N1,
+N2, T2 and T25 are measured).
+
+Opening. ``f = F(v) G(n_HPC)``. ``F``: a monotone cubic Hermite table (:mod:`hermite`) from
+``knots``, flat at its first value below the first knot and exactly 0 above the last, which
+is the design point's ``v`` (``n_HPC = n_fan = 1``). ``G = 1 - step((n_HPC - a) / (b - a))``
+with ``(a, b) = core_close`` and the C-infinity step of :func:`components.smooth_step`: the
+valves shut above a corrected core speed ``b`` whatever the fan speed (climb, cruise and
+take-off run with them shut). On the ground the opening is limited to ``f_ground_max``; the
+ground/flight switch is the throttle schedule's (weight on wheels,
+:meth:`schedule.ThrottleSchedule.flight_weight`).
+
+How the numbers were designed (as a real VBV schedule is: from a stability audit of the new
+engine, not from data). ``benchmarks/vbv_schedule_audit.py`` holds the valves at fixed openings
+over 1,530 envelope points (alt 0-42 kft; Mach 0 or 0.25, the CAS limit and between; ISA -15,
+0, +15 K; TRA 20-100) and finds at each the opening ``need`` for a booster stall margin of
+3 % and the largest opening ``cap`` the booster passes before it chokes. Its ``--propose``
+step prints this table:
+
+* ``fan_bias`` = 0.35: of the biases 0-0.6 (step 0.05) the one with which a schedule on ``v``
+  alone exists in flight (no two points within 0.003 of ``v`` where one's ``1.05 need``
+  exceeds the other's ``cap``; 0.3 leaves 12 such points, 0.4 leaves 38, 0 leaves 153).
+* knot values: the smallest non-increasing curve above ``1.05 need`` of every flight point,
+  read half a knot spacing early (so the Hermite segment between two knots covers the points
+  between them), rounded up to 0.005; the last knot is the design point's ``v`` at 0. All stay
+  at or under the audit's ``cap``.
+* ``core_close`` = (0.90, 0.94): the earliest closing band (0.01 steps, 0.04 wide) with which
+  every flight point still gets its ``need``. At the envelope's cruise points (30-42 kft,
+  Mach 0.84, TRA 75-100) the valves then bleed 0.09 % of the booster flow on average (at
+  most 0.9 %, at TRA 75; nothing from TRA 80), at sea-level take-off nothing.
+* ``f_ground_max`` = 0.065: at ground idle (corrected fan speed 25-33 %) the booster's speed
+  line spans a pressure ratio of only about 1.02: no opening reaches the 3 % target there (the
+  best, 2.4 %, at 0.075) and the booster chokes above 0.075; the largest ground need elsewhere
+  is 0.059 (Mach 0, TRA 35), and 1.05 times that, rounded up to 0.005, is the limit. In
+  flight the same ``v`` (flight idle at high Mach) needs up to 0.33, so the ground limit is
+  what lets one table serve both.
+
+Measured with the schedule (``--check``, ``benchmarks/results/vbv_schedule_audit.md``): all
+1,530 points converge; the lowest booster stall margin is 1.06 % at ground idle and 3.26 %
+in flight.
+
+Every function works on floats, numpy arrays and CasADi symbols.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .components import smooth_step
+from .hermite import fritsch_carlson_slopes, hermite
+from .schedule import band_min
+
+# (v, opening) - module doc; benchmarks/vbv_schedule_audit.py --propose
+VBV_KNOTS = ((0.49, 0.335), (0.50, 0.335), (0.51, 0.335), (0.52, 0.330), (0.53, 0.325),
+             (0.54, 0.295), (0.55, 0.265), (0.56, 0.240), (0.57, 0.235), (0.58, 0.210),
+             (0.59, 0.180), (0.60, 0.145), (0.61, 0.135), (0.62, 0.115), (0.63, 0.095),
+             (0.64, 0.075), (0.65, 0.060), (0.66, 0.040), (0.67, 0.025), (0.68, 0.005),
+             (0.69, 0.0))
+
+
+@dataclass(frozen=True)
+class BleedValveSchedule:
+    knots: tuple = VBV_KNOTS
+    fan_bias: float = 0.30
+    mach_bias: float = 0.075
+    core_close: tuple = (0.90, 0.94)  # corrected core speed band over which the valves shut
+    f_low: float = 0.065  # largest opening at ground-idle fan speeds
+    low_speed_band: tuple = (0.34, 0.38)  # corrected fan speed over which that limit lifts
+    limit_band: float = 0.005  # half-width of the smooth minimum with the limit
+
+    def _points(self):
+        t = np.array([k[0] for k in self.knots], float)
+        y = np.array([k[1] for k in self.knots], float)
+        m = fritsch_carlson_slopes(t, y, first=0.0)
+        m[-1] = 0.0  # exactly shut above the last knot
+        return t, y, m
+
+    def variable(self, n_hpc, n_fan, mach):
+        """The schedule variable ``v = n_HPC - fan_bias n_fan - mach_bias Mach`` (corrected
+        speeds as fractions of design)."""
+        return n_hpc - self.fan_bias * n_fan - self.mach_bias * mach
+
+    def flight_opening(self, n_hpc, n_fan, mach):
+        """``F(v) G(n_HPC)``: the opening in flight (fraction of the booster exit flow)."""
+        a, b = self.core_close
+        g = 1.0 - smooth_step((n_hpc - a) / (b - a))
+        return hermite(self.variable(n_hpc, n_fan, mach), *self._points()) * g
+
+    def low_speed_limit(self, n_fan):
+        """The largest opening at corrected fan speed ``n_fan``: ``f_low`` below
+        ``low_speed_band[0]``, rising (C-infinity) to 1, i.e. no limit, at ``low_speed_band[1]``."""
+        a, b = self.low_speed_band
+        return self.f_low + (1.0 - self.f_low) * smooth_step((n_fan - a) / (b - a))
+
+    def fraction(self, n_hpc, n_fan, mach):
+        """The opening (fraction of the booster exit flow): the flight opening limited at low
+        fan speed (a C-infinity minimum, exact outside ``limit_band``)."""
+        return band_min(self.flight_opening(n_hpc, n_fan, mach), self.low_speed_limit(n_fan),
+                        self.limit_band)
