@@ -79,8 +79,9 @@ class BleedValveSchedule:
     fan_bias: float = 0.30
     mach_bias: float = 0.075
     core_close: tuple = (0.90, 0.94)  # corrected core speed band over which the valves shut
-    f_low: float = 0.065  # largest opening at ground-idle fan speeds
-    low_speed_band: tuple = (0.34, 0.38)  # corrected fan speed over which that limit lifts
+    f_low: float = 0.065  # largest opening at ground-idle fan speeds, static
+    f_low_per_mach: float = 0.22  # its rise with flight Mach (ram)
+    low_speed_band: tuple = (0.42, 0.46)  # corrected fan speed over which that limit lifts
     limit_band: float = 0.005  # half-width of the smooth minimum with the limit
 
     def _points(self):
@@ -101,14 +102,16 @@ class BleedValveSchedule:
         g = 1.0 - smooth_step((n_hpc - a) / (b - a))
         return hermite(self.variable(n_hpc, n_fan, mach), *self._points()) * g
 
-    def low_speed_limit(self, n_fan):
-        """The largest opening at corrected fan speed ``n_fan``: ``f_low`` below
-        ``low_speed_band[0]``, rising (C-infinity) to 1, i.e. no limit, at ``low_speed_band[1]``."""
+    def low_speed_limit(self, n_fan, mach):
+        """The largest opening at corrected fan speed ``n_fan`` and flight Mach ``mach``:
+        ``f_low + f_low_per_mach Mach`` below ``low_speed_band[0]`` (ram lets the booster pass
+        more), rising (C-infinity) to 1, i.e. no limit, at ``low_speed_band[1]``."""
         a, b = self.low_speed_band
-        return self.f_low + (1.0 - self.f_low) * smooth_step((n_fan - a) / (b - a))
+        f0 = self.f_low + self.f_low_per_mach * mach
+        return f0 + (1.0 - f0) * smooth_step((n_fan - a) / (b - a))
 
     def fraction(self, n_hpc, n_fan, mach):
         """The opening (fraction of the booster exit flow): the flight opening limited at low
         fan speed (a C-infinity minimum, exact outside ``limit_band``)."""
-        return band_min(self.flight_opening(n_hpc, n_fan, mach), self.low_speed_limit(n_fan),
+        return band_min(self.flight_opening(n_hpc, n_fan, mach), self.low_speed_limit(n_fan, mach),
                         self.limit_band)
