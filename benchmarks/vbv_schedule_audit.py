@@ -37,7 +37,7 @@ import pandas as pd
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel, atmosphere  # noqa: E402
-from engine_model.effects import Effect, Param  # noqa: E402
+from engine_model.bleed_schedule import BleedValveSchedule, FixedOpening  # noqa: E402
 from engine_model.sampling import MAX_CAS_KT  # noqa: E402
 from engine_model.shared_model import default_model  # noqa: E402
 from engine_model.units import KT_TO_MS, k_to_r  # noqa: E402
@@ -48,16 +48,6 @@ ALLOWANCE = 0.10  # a schedule's opening over the largest need it covers (relati
 SCHEDULE_ALLOWANCE = 0.05  # the same, for the schedule --propose designs
 BAND = 0.0125  # band of corrected core speed n_hpc (fraction of design)
 CELL = (0.025, 0.05)  # cell of (n_hpc, NRf / NRf_des)
-
-
-class FixedVbv(Effect):
-    """Holds the valves at the opening ``f`` (fraction of the booster exit flow)."""
-
-    name = "vbv_fixed"
-    params = (Param("f", "-", 0.0, "VBV opening, fraction of W22"),)
-
-    def apply(self, hook, value, p, ctx):
-        return p["f"] * ctx["W22"] if hook == "W_vbv" else value
 
 
 def envelope_grid():
@@ -77,7 +67,7 @@ def envelope_grid():
 
 def sweep(rows):
     """Solve every row at every fixed opening; long table with SmLPC, n_hpc, converged."""
-    model = EngineModel(effects=[FixedVbv()])
+    model = EngineModel(effects=[FixedOpening()])
     w = rows[:, [0, 1, 2, 4]]
     th = np.zeros((len(w), len(THETA_NAMES)))
     nrc_des = model.design.nrc_des
@@ -212,14 +202,12 @@ def propose():
     """Design the VBV schedule from the audit (the rules in engine_model.bleed_schedule's
     module doc) and print it: the fan and Mach biases, the knots of F, the core-speed closing
     band and the ground limit."""
-    from engine_model.bleed_schedule import BleedValveSchedule
-
     req = requirements(envelope_grid())
     want = np.where(req.reached, (1.0 + SCHEDULE_ALLOWANCE) * req.need, 0.0)
-    lo, hi = BleedValveSchedule().low_speed_band
-    fl, slow = (req.nrf >= hi).to_numpy(), (req.nrf < hi).to_numpy()
-    print(f"{len(req)} points: {fl.sum()} at corrected fan speed >= {hi}, {slow.sum()} below "
-          "(ground idle)\n")
+    weight = np.asarray(default_model().design.spec.throttle.flight_weight(
+        req.Mach.to_numpy(), req.alt.to_numpy()), float).ravel()
+    fl, ground = weight > 0.99, weight < 0.01
+    print(f"{len(req)} points: {fl.sum()} in flight, {ground.sum()} on the ground\n")
     scan = {}
     for b in np.round(np.arange(0.0, 0.601, 0.05), 2):
         for c in np.round(np.arange(0.0, 0.301, 0.025), 3):
@@ -253,11 +241,16 @@ def propose():
         if short == 0 and close is None:
             close = (float(a), float(a + 0.04))
     print(f"\nearliest closing band with no flight point short: {close}")
-    reach = slow & req.reached.to_numpy()
-    top = need[reach].max() if reach.any() else float("nan")
-    print(f"below {hi}: {int((slow & ~req.reached.to_numpy()).sum())} points where no opening "
-          f"reaches the target, largest need where one does {top:.4f}, smallest cap "
-          f"{req.cap[slow].min():.3f}: low-speed limit {req.cap[slow].min() - 0.01:.3f}")
+    # the low-speed limit is chosen by hand from this table (bleed_schedule's module doc) and
+    # verified with --check
+    slow = req[req.nrf < 0.46].assign(ground=ground[(req.nrf < 0.46).to_numpy()])
+    print("\npoints below corrected fan speed 0.46 (largest need, smallest cap):\n")
+    print("| alt ft | Mach | on the ground | NRf | largest need | smallest cap | target reached |")
+    print("|---|---|---|---|---|---|---|")
+    for (alt, mach), g in slow.groupby(["alt", "Mach"]):
+        print(f"| {alt:.0f} | {mach:.3f} | {'yes' if g.ground.all() else 'no'} | "
+              f"{g.nrf.min():.3f}-{g.nrf.max():.3f} | {g.need.max():.3f} | {g.cap.min():.3f} | "
+              f"{int(g.reached.sum())}/{len(g)} |")
 
 
 def check():

@@ -488,7 +488,6 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
                     run.features[u] = feats
                 d = res.diagnostics
                 warns = list(d.get("warnings", []))
-                run.warnings += warns
                 run.units[u] = {"samples": len(feats), "seconds": float(d.get("seconds", 0)),
                                 "n_nonconverged": int(d.get("n_nonconverged", 0)),
                                 "unobservable": list(d.get("unobservable", [])),
@@ -500,6 +499,9 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
         ex.abort()
         raise
     ex.close()
+    # in unit order, not in the order the workers finished: the same run reports the same
+    run.units = {u: run.units[u] for u in sorted(run.units)}
+    run.warnings = [w for rec in run.units.values() for w in rec["warnings"]]
     run.seconds = time.perf_counter() - t0
     return run
 

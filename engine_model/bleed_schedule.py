@@ -9,48 +9,54 @@ bleed). On the CFM56 the VBVs are open at idle and shut at high power, scheduled
 core speed ``N2K25`` with a fan-speed term (Linke-Diesinger, *Systems of Commercial Turbofan
 Engines*, Springer 2008, ch. 4 and 8).
 
-Schedule variable. ``v = n_HPC - fan_bias * n_fan``: corrected core speed (on T24, fraction of
-design) biased by the corrected fan speed (on T2): the valves close at a core speed that rises
-with fan speed, ``n_HPC = v_close + fan_bias * n_fan``. Both are quantities a FADEC has (N1,
-N2, T2 and T25 are measured).
+Schedule variable. ``v = n_HPC - fan_bias n_fan - mach_bias Mach``: corrected core speed (on
+T24, fraction of design) biased by the corrected fan speed (on T2) and the flight Mach number:
+the valves close at a core speed that rises with fan speed and with ram. All three are
+quantities a FADEC has (N1, N2, T2 and T25 are measured, Mach comes from the air-data
+computer).
 
-Opening. ``f = F(v) G(n_HPC)``. ``F``: a monotone cubic Hermite table (:mod:`hermite`) from
-``knots``, flat at its first value below the first knot and exactly 0 above the last, which
-is the design point's ``v`` (``n_HPC = n_fan = 1``). ``G = 1 - step((n_HPC - a) / (b - a))``
-with ``(a, b) = core_close`` and the C-infinity step of :func:`components.smooth_step`: the
-valves shut above a corrected core speed ``b`` whatever the fan speed (climb, cruise and
-take-off run with them shut). On the ground the opening is limited to ``f_ground_max``; the
-ground/flight switch is the throttle schedule's (weight on wheels,
-:meth:`schedule.ThrottleSchedule.flight_weight`).
+Opening. ``f = min(F(v) G(n_HPC), L(n_fan, Mach))``. ``F``: a monotone cubic Hermite table
+(:mod:`hermite`) from ``knots``, flat at its first value below the first knot and exactly 0
+from the last on (at or below the design point's ``v``, so take-off has no bleed).
+``G = 1 - step((n_HPC - a) / (b - a))`` with ``(a, b) = core_close`` and the C-infinity step of
+:func:`components.smooth_step`: the valves shut above a corrected core speed ``b`` whatever the
+fan speed. ``L``: the low-speed limit, ``f_low + f_low_per_mach Mach`` below corrected fan speed
+``low_speed_band[0]``, lifted (to 1, no limit) by ``low_speed_band[1]``; the minimum is
+C-infinity, exact outside ``limit_band``.
 
 How the numbers were designed (as a real VBV schedule is: from a stability audit of the new
 engine, not from data). ``benchmarks/vbv_schedule_audit.py`` holds the valves at fixed openings
-over 1,530 envelope points (alt 0-42 kft; Mach 0 or 0.25, the CAS limit and between; ISA -15,
-0, +15 K; TRA 20-100) and finds at each the opening ``need`` for a booster stall margin of
-3 % and the largest opening ``cap`` the booster passes before it chokes. Its ``--propose``
-step prints this table:
+over 3,009 envelope points (alt 0-42 kft; Mach 0, 0.1, 0.2, 0.25, the CAS limit and between;
+ISA -15, 0, +15 K; TRA 20-100) and finds at each the opening ``need`` for a booster stall
+margin of 3 % and the largest opening ``cap`` the booster passes before it chokes. Its
+``--propose`` step prints:
 
-* ``fan_bias`` = 0.35: of the biases 0-0.6 (step 0.05) the one with which a schedule on ``v``
-  alone exists in flight (no two points within 0.003 of ``v`` where one's ``1.05 need``
-  exceeds the other's ``cap``; 0.3 leaves 12 such points, 0.4 leaves 38, 0 leaves 153).
+* ``fan_bias``, ``mach_bias`` = 0.30, 0.075: over the 2,907 flight points (the throttle
+  schedule's ground/flight weight above 0.99), of the pairs on a 0.05 x 0.025 grid with which
+  a schedule on ``v`` alone has no conflict (no two points within 0.003 of ``v`` where one's
+  ``1.05 need`` exceeds the other's ``cap``), the one with the smallest Mach term. Without a
+  Mach term the best bias (0.35) leaves 9 conflicts, all at low Mach.
 * knot values: the smallest non-increasing curve above ``1.05 need`` of every flight point,
   read half a knot spacing early (so the Hermite segment between two knots covers the points
-  between them), rounded up to 0.005; the last knot is the design point's ``v`` at 0. All stay
-  at or under the audit's ``cap``.
+  between them), rounded up to 0.005, ending at the first zero.
 * ``core_close`` = (0.90, 0.94): the earliest closing band (0.01 steps, 0.04 wide) with which
-  every flight point still gets its ``need``. At the envelope's cruise points (30-42 kft,
-  Mach 0.84, TRA 75-100) the valves then bleed 0.09 % of the booster flow on average (at
-  most 0.9 %, at TRA 75; nothing from TRA 80), at sea-level take-off nothing.
-* ``f_ground_max`` = 0.065: at ground idle (corrected fan speed 25-33 %) the booster's speed
-  line spans a pressure ratio of only about 1.02: no opening reaches the 3 % target there (the
-  best, 2.4 %, at 0.075) and the booster chokes above 0.075; the largest ground need elsewhere
-  is 0.059 (Mach 0, TRA 35), and 1.05 times that, rounded up to 0.005, is the limit. In
-  flight the same ``v`` (flight idle at high Mach) needs up to 0.33, so the ground limit is
-  what lets one table serve both.
+  every flight point still gets its ``need``. The booster needs bleed at cruise part power:
+  without it its margin at 35 kft Mach 0.8 is -0.4 % at TRA 60 and 2.1 % at TRA 70, so the
+  valves modulate through cruise (11 % of the booster flow at TRA 60, 2.7 % at TRA 70, 0.2 %
+  at TRA 75) and are shut from TRA 80; at sea-level take-off and at climb they are shut.
+* the low-speed limit, chosen by hand from the table ``--propose`` prints of the points below
+  corrected fan speed 0.46: at ground idle (corrected fan speed 0.25-0.33) the booster's speed
+  line spans a pressure ratio of only about 1.02, no opening reaches the 3 % target (the best,
+  2.4 %, at 0.075) and the booster chokes above 0.075, as it does up to ground TRA 35
+  (corrected fan speed 0.42) and in static flight at 5,000 and 20,000 ft; with ram it passes
+  more (smallest cap 0.10 at Mach 0.1, 0.125 at Mach 0.2). Hence ``f_low`` = 0.065 (0.01 under
+  the static cap), ``f_low_per_mach`` = 0.22 (0.087 at Mach 0.1, 0.109 at Mach 0.2: under the
+  caps, at or just under the needs: 0.081 and 0.115 at 5,000 ft) and the band (0.42, 0.46)
+  just above ground TRA 35. Without the limit ``F`` opens up to 0.33 there (high-Mach flight
+  idle has the same ``v``) and the booster chokes.
 
 Measured with the schedule (``--check``, ``benchmarks/results/vbv_schedule_audit.md``): all
-1,530 points converge; the lowest booster stall margin is 1.06 % at ground idle and 3.26 %
-in flight.
+3,009 points converge; the lowest booster stall margin is 1.06 % (ground idle).
 
 Every function works on floats, numpy arrays and CasADi symbols.
 """
@@ -62,6 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .components import smooth_step
+from .effect_base import Effect, Param
 from .hermite import fritsch_carlson_slopes, hermite
 from .schedule import band_min
 
@@ -115,3 +122,16 @@ class BleedValveSchedule:
         fan speed (a C-infinity minimum, exact outside ``limit_band``)."""
         return band_min(self.flight_opening(n_hpc, n_fan, mach), self.low_speed_limit(n_fan, mach),
                         self.limit_band)
+
+
+class FixedOpening(Effect):
+    """An effect that holds the valves at the opening ``f`` (fraction of the booster exit
+    flow) instead of the schedule's, through the model's ``W_vbv`` hook: for the stability
+    audit (``benchmarks/vbv_schedule_audit.py``) and for what-if studies (valves rigged or
+    stuck). Not registered in the effect library."""
+
+    name = "vbv_fixed"
+    params = (Param("f", "-", 0.0, "VBV opening, fraction of W22"),)
+
+    def apply(self, hook, value, p, ctx):
+        return p["f"] * ctx["W22"] if hook == "W_vbv" else value

@@ -97,9 +97,11 @@ def test_each_library_effect_is_named_estimated_and_removed(model, spec, name, p
     assert lo <= value <= hi, (f["params"], f["std"])
     before, after = f["residual_before"], f["residual_after"]
     moved = [c for c in before if before[c] > 2.0]
-    if moved:  # the residual RMSE of every channel it disturbs cut by at least half
+    if moved:  # the noise-free part of every disturbed channel's residual cut by at least half
+        # (residuals are in noise sigmas, so RMS^2 - 1 is the effect's share: halving the RMS
+        # itself is out of reach for a channel that moved to about 2 sigma, whose floor is 1)
         for c in moved:
-            assert after[c] <= 0.5 * before[c], (c, before[c], after[c])
+            assert after[c] ** 2 - 1.0 <= 0.25 * (before[c] ** 2 - 1.0), (c, before[c], after[c])
     else:  # a sensor effect: its channel's excess over the noise at least halved
         ch = eff.channel
         assert after[ch] ** 2 - 1.0 <= 0.5 * (before[ch] ** 2 - 1.0), (before[ch], after[ch])

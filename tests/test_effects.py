@@ -6,6 +6,7 @@ import pandas as pd
 import pytest
 
 from engine_model import OUTPUT_NAMES, XS_NAMES, EngineModel
+from engine_model.bleed_schedule import FixedOpening
 from engine_model.effect_library import Dynamics
 from engine_model.effects import (
     Effect,
@@ -147,14 +148,7 @@ def test_user_registered_effect(model):
 def test_vbv_hook_sets_the_booster_bleed(model):
     """An effect that rewrites ``W_vbv`` (as benchmarks/vbv_schedule_audit.py does to hold the
     valves at a fixed opening) moves booster air into the bypass: the HPC gets W22 - W_vbv."""
-    class FixedVbv(Effect):
-        name = "test_fixed_vbv"
-        params = (Param("f", "-", 0.0, "VBV opening, fraction of W22"),)
-
-        def apply(self, hook, value, p, ctx):
-            return p["f"] * ctx["W22"] if hook == "W_vbv" else value
-
-    m = EngineModel(design=model.design, effects=[FixedVbv()], compiled=False)
+    m = EngineModel(design=model.design, effects=[FixedOpening()], compiled=False)
     w = w_rows([(0, 0, 100), (20000, 0.7, 100)])
     for f in (0.0, 0.04):
         ev = m.evaluate(w, p=np.full((2, 1), f))
