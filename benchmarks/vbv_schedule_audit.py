@@ -9,19 +9,23 @@ measures (on the CFM56, the corrected core speed ``N2K25``, with a fan-speed ter
 Diesinger, *Systems of Commercial Turbofan Engines*, Springer 2008, ch. 4 and 8; Walsh &
 Fletcher, *Gas Turbine Performance*, 2nd ed., ch. 5.2.6 and 7.2).
 
-Audit. The new engine is solved on a grid of the envelope (altitude 0-42,000 ft; Mach 0 on the
-ground or 0.25 in flight, the 350 kt CAS limit and a point between; ISA -15/0/+15 K; TRA 20-100
-by 5) with the valves held at fixed openings ``f`` = 0, 0.025, ... 0.40 of the booster exit
-flow (an override of the model's ``W_vbv`` hook; each opening starts from the previous one's
-solution). Per point (:func:`requirement`): ``need``, the opening at which the booster stall
-margin ``SmLPC`` reaches ``SM_TARGET`` (or the best margin where none does: ground idle, whose
-whole booster speed line spans a pressure ratio of about 1.02), the corrected core speed
-``n_hpc`` and fan speed ``NRf`` there, and ``cap``, the largest opening the booster can pass
-(beyond it the booster chokes and the engine has no steady state). A schedule on a variable
-exists only if, in every band of it, ``(1 + ALLOWANCE) need <= cap`` for every pair of points
-(``need <= cap`` where the target is out of reach):
-the tables print the largest need and the smallest cap per band of ``n_hpc`` and per cell of
-``(n_hpc, NRf)``, and count the conflicts.
+Audit. The new engine is solved on a grid of the envelope (altitude 0-42,000 ft; Mach 0, 0.1
+and 0.2 at every altitude, as the sampled envelope starts at Mach 0, and 0.25 in flight, the
+350 kt CAS limit and a point between; ISA -15/0/+15 K; TRA 20-100 by 5) with the valves held at
+fixed openings ``f`` = 0, 0.025, ... 0.40 of the booster exit flow (an override of the model's
+``W_vbv`` hook; each opening starts from the previous one's solution). Per point
+(:func:`requirement`): ``need``, the opening at which the booster stall margin ``SmLPC``
+reaches ``SM_TARGET`` (or the best margin where none does: ground idle, whose whole booster
+speed line spans a pressure ratio of about 1.02), the corrected core speed ``n_hpc`` and fan
+speed ``NRf`` there, and ``cap``, the largest opening the booster can pass (beyond it the
+booster chokes and the engine has no steady state). A schedule on a variable exists only if, in
+every band of it, ``(1 + ALLOWANCE) need <= cap`` for every pair of points (``need <= cap``
+where the target is out of reach): the tables print the largest need and the smallest cap per
+band of ``n_hpc`` and per cell of ``(n_hpc, NRf)``, and count the conflicts.
+
+The audit also scans schedules on one combined variable ``v = n_hpc - b NRf - c Mach``
+(:func:`combined_variable_scan`), over the flight points at Mach >= 0.25, all flight points, and
+every point (the ground included).
 
 ``--check`` solves the same grid with the model as it is (its own schedule) and prints the
 convergence and the lowest booster stall margin per (altitude, Mach).
@@ -39,6 +43,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel, atmosphere  # noqa: E402
 from engine_model.effects import Effect, Param  # noqa: E402
 from engine_model.sampling import MAX_CAS_KT  # noqa: E402
+from engine_model.schedule import ThrottleSchedule  # noqa: E402
 from engine_model.shared_model import default_model  # noqa: E402
 from engine_model.units import KT_TO_MS, k_to_r  # noqa: E402
 
@@ -65,7 +70,8 @@ def envelope_grid():
     for alt in (0, 5000, 10000, 15000, 20000, 25000, 30000, 35000, 39000, 42000):
         m_cas = min(0.84, float(atmosphere.mach_from_cas(MAX_CAS_KT * KT_TO_MS, alt)))
         m_low = 0.0 if alt == 0 else 0.25
-        for mach in sorted({m_low, round(0.5 * (m_low + m_cas), 3), round(m_cas, 3)}):
+        slow = {0.0, 0.1, 0.2}  # in flight too: the sampled envelope starts at Mach 0
+        for mach in sorted(slow | {m_low, round(0.5 * (m_low + m_cas), 3), round(m_cas, 3)}):
             for dT in (-15.0, 0.0, 15.0):
                 t2 = k_to_r(float(atmosphere.t2_from_flight(alt, mach, dT)))
                 for tra in np.arange(20.0, 100.1, 5.0):
@@ -142,11 +148,8 @@ def conflicts(req, keys):
     return g
 
 
-def audit():
-    rows = envelope_grid()
-    print(f"audit grid: {len(rows)} points, openings {OPENINGS[0]}-{OPENINGS[-1]}",
-          file=sys.stderr)
-    t0 = time.perf_counter()
+def requirements(rows):
+    """The sweep's per-point requirements (:func:`requirement`) as a table."""
     long = sweep(rows)
     reqs = []
     for r, curve in long.groupby("row"):
@@ -155,7 +158,47 @@ def audit():
             reqs.append(dict(row=r, alt=rows[r, 0], Mach=rows[r, 1], TRA=rows[r, 2],
                              dT=rows[r, 3], need=got[0], n_hpc=got[1], nrf=got[2],
                              cap=got[3], reached=got[4]))
-    req = pd.DataFrame(reqs)
+    return pd.DataFrame(reqs)
+
+
+def one_variable_conflicts(v, want, cap, window=0.003):
+    """``(count, worst)``: points whose ``cap`` is below the ``want`` of a point within
+    ``window`` of the schedule variable ``v``, and the largest such excess."""
+    o = np.argsort(v)
+    v, want, cap = np.asarray(v)[o], np.asarray(want)[o], np.asarray(cap)[o]
+    lo, hi = np.searchsorted(v, v - window), np.searchsorted(v, v + window)
+    excess = np.array([want[a:b].max() - c for a, b, c in zip(lo, hi, cap, strict=True)])
+    bad = excess > 1e-9
+    return int(bad.sum()), float(excess[bad].max()) if bad.any() else 0.0
+
+
+def combined_variable_scan(req, sets):
+    """Conflicts of a schedule on one combined variable ``v = n_hpc - b NRf - c Mach``
+    (corrected speeds as fractions of design) per set of points, for every ``b`` in 0-0.6
+    (step 0.05) and ``c`` in 0-0.3 (step 0.025); wanted opening ``1.05 need`` (0 where the
+    target is out of reach). Prints the best pairs."""
+    want = np.where(req.reached, 1.05 * req.need, 0.0)
+    cap = req.cap.to_numpy()
+    for name, mask in sets.items():
+        scan = {}
+        for b in np.round(np.arange(0.0, 0.601, 0.05), 2):
+            for c in np.round(np.arange(0.0, 0.301, 0.025), 3):
+                v = (req.n_hpc - b * req.nrf - c * req.Mach).to_numpy()
+                scan[(b, c)] = one_variable_conflicts(v[mask], want[mask], cap[mask])
+        best = sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))[:4]
+        print(f"\n{name} ({int(mask.sum())} points): best pairs, and b = 0.35 without Mach\n")
+        print("| NRf coefficient b | Mach coefficient c | points in conflict | largest excess |")
+        print("|---|---|---|---|")
+        for k in best + [(0.35, 0.0)]:
+            print(f"| {k[0]:.2f} | {k[1]:.3f} | {scan[k][0]} | {scan[k][1]:.3f} |")
+
+
+def audit():
+    rows = envelope_grid()
+    print(f"audit grid: {len(rows)} points, openings {OPENINGS[0]}-{OPENINGS[-1]}",
+          file=sys.stderr)
+    t0 = time.perf_counter()
+    req = requirements(rows)
     req["band"] = np.floor(req.n_hpc / BAND + 1e-9) * BAND
     req["cell_n"] = np.floor(req.n_hpc / CELL[0] + 1e-9) * CELL[0]
     req["cell_f"] = np.floor(req.nrf / CELL[1] + 1e-9) * CELL[1]
@@ -189,6 +232,12 @@ def audit():
                 cells.append("")
         print(f"| {n:.3f} | " + " | ".join(cells) + " |")
 
+    weight = np.asarray(ThrottleSchedule().flight_weight(req.Mach.to_numpy(),
+                                                         req.alt.to_numpy()), float).ravel()
+    combined_variable_scan(req, {
+        "in flight, Mach >= 0.25": (weight > 0.99) & (req.Mach >= 0.25).to_numpy(),
+        "in flight, every Mach": weight > 0.99,
+        "every point": np.ones(len(req), bool)})
 
 def check():
     rows = envelope_grid()

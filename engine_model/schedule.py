@@ -124,13 +124,17 @@ class ThrottleSchedule:
         lo, hi = self.alt_flight
         return 0.5 * (1.0 + _tanh((alt - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
 
-    def n2_min(self, mach, alt):
-        """Minimum physical core speed [fraction of design]: ground idle value on the ground,
-        flight idle value in flight (above ``mach_flight`` or ``alt_flight``), joined
-        smoothly."""
+    def flight_weight(self, mach, alt):
+        """The ground/flight switch (weight on wheels): 0 on the ground, 1 in flight (above
+        ``mach_flight`` or ``alt_flight``), smooth between."""
         lo, hi = self.mach_flight
         s_m = 0.5 * (1.0 + _tanh((mach - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
-        s = 1.0 - (1.0 - s_m) * (1.0 - self.alt_flight_weight(alt))
+        return 1.0 - (1.0 - s_m) * (1.0 - self.alt_flight_weight(alt))
+
+    def n2_min(self, mach, alt):
+        """Minimum physical core speed [fraction of design]: ground idle value on the ground,
+        flight idle value in flight, joined by :meth:`flight_weight`."""
+        s = self.flight_weight(mach, alt)
         return self.n2_min_ground + (self.n2_min_flight - self.n2_min_ground) * s
 
     def controller_residual(self, n_fan, n_cmd, n2, t48, mach, alt):
