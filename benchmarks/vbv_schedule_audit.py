@@ -239,6 +239,7 @@ def audit():
         "in flight, every Mach": weight > 0.99,
         "every point": np.ones(len(req), bool)})
 
+
 def check():
     rows = envelope_grid()
     ev = default_model().evaluate(pd.DataFrame(rows[:, [0, 1, 2, 4]],
