@@ -9,19 +9,23 @@ measures (on the CFM56, the corrected core speed ``N2K25``, with a fan-speed ter
 Diesinger, *Systems of Commercial Turbofan Engines*, Springer 2008, ch. 4 and 8; Walsh &
 Fletcher, *Gas Turbine Performance*, 2nd ed., ch. 5.2.6 and 7.2).
 
-Audit. The new engine is solved on a grid of the envelope (altitude 0-42,000 ft; Mach 0 on the
-ground or 0.25 in flight, the 350 kt CAS limit and a point between; ISA -15/0/+15 K; TRA 20-100
-by 5) with the valves held at fixed openings ``f`` = 0, 0.025, ... 0.40 of the booster exit
-flow (an override of the model's ``W_vbv`` hook; each opening starts from the previous one's
-solution). Per point (:func:`requirement`): ``need``, the opening at which the booster stall
-margin ``SmLPC`` reaches ``SM_TARGET`` (or the best margin where none does: ground idle, whose
-whole booster speed line spans a pressure ratio of about 1.02), the corrected core speed
-``n_hpc`` and fan speed ``NRf`` there, and ``cap``, the largest opening the booster can pass
-(beyond it the booster chokes and the engine has no steady state). A schedule on a variable
-exists only if, in every band of it, ``(1 + ALLOWANCE) need <= cap`` for every pair of points
-(``need <= cap`` where the target is out of reach):
-the tables print the largest need and the smallest cap per band of ``n_hpc`` and per cell of
-``(n_hpc, NRf)``, and count the conflicts.
+Audit. The new engine is solved on a grid of the envelope (altitude 0-42,000 ft; Mach 0, 0.1
+and 0.2 at every altitude, as the sampled envelope starts at Mach 0, and 0.25 in flight, the
+350 kt CAS limit and a point between; ISA -15/0/+15 K; TRA 20-100 by 5) with the valves held at
+fixed openings ``f`` = 0, 0.025, ... 0.40 of the booster exit flow (an override of the model's
+``W_vbv`` hook; each opening starts from the previous one's solution). Per point
+(:func:`requirement`): ``need``, the opening at which the booster stall margin ``SmLPC``
+reaches ``SM_TARGET`` (or the best margin where none does: ground idle, whose whole booster
+speed line spans a pressure ratio of about 1.02), the corrected core speed ``n_hpc`` and fan
+speed ``NRf`` there, and ``cap``, the largest opening the booster can pass (beyond it the
+booster chokes and the engine has no steady state). A schedule on a variable exists only if, in
+every band of it, ``(1 + ALLOWANCE) need <= cap`` for every pair of points (``need <= cap``
+where the target is out of reach): the tables print the largest need and the smallest cap per
+band of ``n_hpc`` and per cell of ``(n_hpc, NRf)``, and count the conflicts.
+
+The audit also scans schedules on one combined variable ``v = n_hpc - b NRf - c Mach``
+(:func:`combined_variable_scan`), over the flight points at Mach >= 0.25, all flight points, and
+every point (the ground included).
 
 ``--check`` solves the same grid with the model as it is (its own schedule) and prints the
 convergence and the lowest booster stall margin per (altitude, Mach).
@@ -147,6 +151,42 @@ def requirements(rows):
     return pd.DataFrame(reqs)
 
 
+def one_variable_conflicts(v, want, cap, window=0.003):
+    """``(count, worst)``: points whose ``cap`` is below the ``want`` of a point within
+    ``window`` of the schedule variable ``v``, and the largest such excess."""
+    o = np.argsort(v)
+    v, want, cap = np.asarray(v)[o], np.asarray(want)[o], np.asarray(cap)[o]
+    lo, hi = np.searchsorted(v, v - window), np.searchsorted(v, v + window)
+    excess = np.array([want[a:b].max() - c for a, b, c in zip(lo, hi, cap, strict=True)])
+    bad = excess > 1e-9
+    return int(bad.sum()), float(excess[bad].max()) if bad.any() else 0.0
+
+
+def combined_variable_scan(req, sets):
+    """Conflicts of a schedule on one combined variable ``v = n_hpc - b NRf - c Mach``
+    (corrected speeds as fractions of design) per set of points, for every ``b`` in 0-0.6
+    (step 0.05) and ``c`` in 0-0.3 (step 0.025); wanted opening ``1.05 need`` (0 where the
+    target is out of reach). Prints the best pairs; returns ``{set name: {(b, c): (count,
+    worst)}}``."""
+    want = np.where(req.reached, (1.0 + SCHEDULE_ALLOWANCE) * req.need, 0.0)
+    cap = req.cap.to_numpy()
+    scans = {}
+    for name, mask in sets.items():
+        scan = {}
+        for b in np.round(np.arange(0.0, 0.601, 0.05), 2):
+            for c in np.round(np.arange(0.0, 0.301, 0.025), 3):
+                v = (req.n_hpc - b * req.nrf - c * req.Mach).to_numpy()
+                scan[(b, c)] = one_variable_conflicts(v[mask], want[mask], cap[mask])
+        best = sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))[:4]
+        print(f"\n{name} ({int(mask.sum())} points): best pairs, and b = 0.35 without Mach\n")
+        print("| NRf coefficient b | Mach coefficient c | points in conflict | largest excess |")
+        print("|---|---|---|---|")
+        for k in best + [(0.35, 0.0)]:
+            print(f"| {k[0]:.2f} | {k[1]:.3f} | {scan[k][0]} | {scan[k][1]:.3f} |")
+        scans[name] = scan
+    return scans
+
+
 def audit():
     rows = envelope_grid()
     print(f"audit grid: {len(rows)} points, openings {OPENINGS[0]}-{OPENINGS[-1]}",
@@ -186,16 +226,12 @@ def audit():
                 cells.append("")
         print(f"| {n:.3f} | " + " | ".join(cells) + " |")
 
-
-def _one_d_conflicts(v, want, cap, window=0.003):
-    """``(count, worst)``: points whose ``cap`` is below the ``want`` of a point within
-    ``window`` of ``v``, and the largest such excess."""
-    o = np.argsort(v)
-    v, want, cap = np.asarray(v)[o], np.asarray(want)[o], np.asarray(cap)[o]
-    lo, hi = np.searchsorted(v, v - window), np.searchsorted(v, v + window)
-    excess = np.array([want[a:b].max() - c for a, b, c in zip(lo, hi, cap, strict=True)])
-    bad = excess > 1e-9
-    return int(bad.sum()), float(excess[bad].max()) if bad.any() else 0.0
+    weight = np.asarray(default_model().design.spec.throttle.flight_weight(
+        req.Mach.to_numpy(), req.alt.to_numpy()), float).ravel()
+    combined_variable_scan(req, {
+        "in flight, Mach >= 0.25": (weight > 0.99) & (req.Mach >= 0.25).to_numpy(),
+        "in flight, every Mach": weight > 0.99,
+        "every point": np.ones(len(req), bool)})
 
 
 def propose():
@@ -208,16 +244,8 @@ def propose():
         req.Mach.to_numpy(), req.alt.to_numpy()), float).ravel()
     fl, ground = weight > 0.99, weight < 0.01
     print(f"{len(req)} points: {fl.sum()} in flight, {ground.sum()} on the ground\n")
-    scan = {}
-    for b in np.round(np.arange(0.0, 0.601, 0.05), 2):
-        for c in np.round(np.arange(0.0, 0.301, 0.025), 3):
-            v = (req.n_hpc - b * req.nrf - c * req.Mach).to_numpy()
-            scan[(b, c)] = _one_d_conflicts(v[fl], want[fl], req.cap.to_numpy()[fl])
+    scan = combined_variable_scan(req, {"in flight": fl})["in flight"]
     best = sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))
-    print("| fan bias | Mach bias | flight points in conflict | largest excess |")
-    print("|---|---|---|---|")
-    for k in best[:8] + [(0.35, 0.0), (0.0, 0.0)]:
-        print(f"| {k[0]:.2f} | {k[1]:.3f} | {scan[k][0]} | {scan[k][1]:.3f} |")
     bias, mach_bias = best[0]
     v = (req.n_hpc - bias * req.nrf - mach_bias * req.Mach).to_numpy()
     v_design = 1.0 - bias
