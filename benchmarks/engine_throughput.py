@@ -8,10 +8,13 @@ README quotes it with the machine it ran on. Points: random civil envelope
 import argparse
 import os
 import platform
+import sys
 import time
 
 import numpy as np
 
+# this checkout, not whichever tree is installed
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from engine_model import EngineModel  # noqa: E402
 from engine_model.sampling import random_envelope  # noqa: E402
 

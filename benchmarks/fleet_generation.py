@@ -16,6 +16,9 @@ import sys
 import tempfile
 import time
 
+# this checkout, not whichever tree is installed
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
 
 def _one(rate: float, seed: int) -> dict:
     from engine_model import EngineModel, fleet

@@ -262,7 +262,7 @@ def propose():
     for a in np.round(np.arange(0.86, 0.961, 0.01), 2):
         sched = BleedValveSchedule(knots=tuple(knots), fan_bias=bias, mach_bias=mach_bias,
                                    core_close=(a, a + 0.04))
-        f = np.asarray(sched.flight_opening(req.n_hpc.to_numpy(), req.nrf.to_numpy(),
+        f = np.asarray(sched.unlimited_opening(req.n_hpc.to_numpy(), req.nrf.to_numpy(),
                                             req.Mach.to_numpy()), float).ravel()
         short = int((fl & req.reached.to_numpy() & (f < need - 1e-9)).sum())
         print(f"core closing band {a:.2f}-{a + 0.04:.2f}: {short} flight points short of need")

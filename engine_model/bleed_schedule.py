@@ -103,8 +103,9 @@ class BleedValveSchedule:
         speeds as fractions of design)."""
         return n_hpc - self.fan_bias * n_fan - self.mach_bias * mach
 
-    def flight_opening(self, n_hpc, n_fan, mach):
-        """``F(v) G(n_HPC)``: the opening in flight (fraction of the booster exit flow)."""
+    def unlimited_opening(self, n_hpc, n_fan, mach):
+        """``F(v) G(n_HPC)``: the opening before the low-speed limit (fraction of the booster
+        exit flow)."""
         a, b = self.core_close
         g = 1.0 - smooth_step((n_hpc - a) / (b - a))
         return hermite(self.variable(n_hpc, n_fan, mach), *self._points()) * g
@@ -118,10 +119,10 @@ class BleedValveSchedule:
         return f0 + (1.0 - f0) * smooth_step((n_fan - a) / (b - a))
 
     def fraction(self, n_hpc, n_fan, mach):
-        """The opening (fraction of the booster exit flow): the flight opening limited at low
-        fan speed (a C-infinity minimum, exact outside ``limit_band``)."""
-        return band_min(self.flight_opening(n_hpc, n_fan, mach), self.low_speed_limit(n_fan, mach),
-                        self.limit_band)
+        """The opening (fraction of the booster exit flow): :meth:`unlimited_opening` limited at
+        low fan speed (a C-infinity minimum, exact outside ``limit_band``)."""
+        return band_min(self.unlimited_opening(n_hpc, n_fan, mach),
+                        self.low_speed_limit(n_fan, mach), self.limit_band)
 
 
 class FixedOpening(Effect):

@@ -24,20 +24,20 @@ def test_open_at_flight_idle_and_limited_at_ground_idle_speeds():
     # ground idle: corrected fan speed 0.25-0.33, where the booster chokes above 0.075
     for n_hpc, n_fan in ((0.64, 0.25), (0.66, 0.27), (0.71, 0.33)):
         assert abs(float(S.fraction(n_hpc, n_fan, 0.0)) - S.f_low) < 1e-12
-        assert float(S.flight_opening(n_hpc, n_fan, 0.0)) > S.f_low + S.limit_band
+        assert float(S.unlimited_opening(n_hpc, n_fan, 0.0)) > S.f_low + S.limit_band
     # ram raises the limit; above the band the limit is gone (exact outside the blend)
     assert float(S.low_speed_limit(0.3, 0.15)) > float(S.low_speed_limit(0.3, 0.0))
     assert float(S.low_speed_limit(S.low_speed_band[1], 0.0)) == 1.0
-    assert float(S.fraction(0.75, 0.59, 0.8)) == float(S.flight_opening(0.75, 0.59, 0.8))
+    assert float(S.fraction(0.75, 0.59, 0.8)) == float(S.unlimited_opening(0.75, 0.59, 0.8))
 
 
 def test_opening_falls_with_core_speed_and_rises_with_fan_speed():
     n = np.linspace(0.6, 1.0, 401)
     for nf in (0.5, 0.7, 0.9):
-        f = np.asarray(S.flight_opening(n, nf, 0.5), float).ravel()
+        f = np.asarray(S.unlimited_opening(n, nf, 0.5), float).ravel()
         assert np.all(np.diff(f) <= 1e-15) and f[0] > 0.0 and f[-1] == 0.0
     nf = np.linspace(0.2, 1.0, 401)
-    f = np.asarray(S.flight_opening(0.88, nf, 0.5), float).ravel()
+    f = np.asarray(S.unlimited_opening(0.88, nf, 0.5), float).ravel()
     assert np.all(np.diff(f) >= -1e-15)
 
 
