@@ -62,8 +62,8 @@ class DesignSpec:
     sm_fan: float = 12.0
     sm_lpc: float = 14.0
     sm_hpc: float = 25.0
-    # variable bleed valves: opening on corrected core and fan speed, limited on the ground
-    # (bleed_schedule.py; designed from benchmarks/vbv_schedule_audit.py)
+    # variable bleed valves: opening on corrected core and fan speeds and Mach, limited at
+    # ground-idle fan speeds (bleed_schedule.py; designed from benchmarks/vbv_schedule_audit.py)
     vbv: BleedValveSchedule = field(default_factory=BleedValveSchedule)
     # TRA -> corrected fan speed, idle to maximum, with the limiters (schedule.py)
     throttle: ThrottleSchedule = field(default_factory=ThrottleSchedule)
@@ -92,9 +92,10 @@ class DesignSpec:
     #   most of its life and for which its compressors are designed (Walsh & Fletcher ch. 7.3;
     #   Cumpsty, Jet Propulsion, ch. 11): the (n, phi_work) of that point as printed by
     #   ``benchmarks/map_design_point.py``. The fan's values are stable to 0.001; the booster
-    #   and HPC values are those of the iteration before the final VBV schedule, and the
-    #   script now prints (0.919, 0.930) and (0.921, 0.992): moving them there brings the
-    #   booster's flight-idle working line closer to surge and costs convergence (open).
+    #   and HPC values are those of an earlier iteration of the maps and VBV schedule; with
+    #   the present VBV schedule (which bleeds 2.65 % at that point) the script prints
+    #   (0.919, 0.946) and (0.927, 0.993). Moving the peaks there is open: it changes the
+    #   booster's working line, so the VBV audit and schedule would have to be redone.
     # - c_n: efficiency fall-off with speed: 5-10 points from the design speed to 50-60 %.
     # - lam (beta scale) is a parametrisation choice and does not change the map's shape in
     #   physical coordinates.
