@@ -162,6 +162,18 @@ def one_variable_conflicts(v, want, cap, window=0.003):
     return int(bad.sum()), float(excess[bad].max()) if bad.any() else 0.0
 
 
+def flight_weight(req):
+    """The throttle schedule's ground/flight weight (0 on the ground, 1 in flight) per point."""
+    return np.asarray(default_model().design.spec.throttle.flight_weight(
+        req.Mach.to_numpy(), req.alt.to_numpy()), float).ravel()
+
+
+def ranked(scan):
+    """The ``(b, c)`` pairs of a scan, fewest conflicts first, then smallest excess, then
+    smallest Mach coefficient."""
+    return sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))
+
+
 def combined_variable_scan(req, sets):
     """Conflicts of a schedule on one combined variable ``v = n_hpc - b NRf - c Mach``
     (corrected speeds as fractions of design) per set of points, for every ``b`` in 0-0.6
@@ -177,7 +189,7 @@ def combined_variable_scan(req, sets):
             for c in np.round(np.arange(0.0, 0.301, 0.025), 3):
                 v = (req.n_hpc - b * req.nrf - c * req.Mach).to_numpy()
                 scan[(b, c)] = one_variable_conflicts(v[mask], want[mask], cap[mask])
-        best = sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))[:4]
+        best = ranked(scan)[:4]
         print(f"\n{name} ({int(mask.sum())} points): best pairs, and b = 0.35 without Mach\n")
         print("| NRf coefficient b | Mach coefficient c | points in conflict | largest excess |")
         print("|---|---|---|---|")
@@ -226,8 +238,7 @@ def audit():
                 cells.append("")
         print(f"| {n:.3f} | " + " | ".join(cells) + " |")
 
-    weight = np.asarray(default_model().design.spec.throttle.flight_weight(
-        req.Mach.to_numpy(), req.alt.to_numpy()), float).ravel()
+    weight = flight_weight(req)
     combined_variable_scan(req, {
         "in flight, Mach >= 0.25": (weight > 0.99) & (req.Mach >= 0.25).to_numpy(),
         "in flight, every Mach": weight > 0.99,
@@ -240,13 +251,10 @@ def propose():
     band and the ground limit."""
     req = requirements(envelope_grid())
     want = np.where(req.reached, (1.0 + SCHEDULE_ALLOWANCE) * req.need, 0.0)
-    weight = np.asarray(default_model().design.spec.throttle.flight_weight(
-        req.Mach.to_numpy(), req.alt.to_numpy()), float).ravel()
+    weight = flight_weight(req)
     fl, ground = weight > 0.99, weight < 0.01
     print(f"{len(req)} points: {fl.sum()} in flight, {ground.sum()} on the ground\n")
-    scan = combined_variable_scan(req, {"in flight": fl})["in flight"]
-    best = sorted(scan, key=lambda k: (scan[k][0], scan[k][1], k[1]))
-    bias, mach_bias = best[0]
+    bias, mach_bias = ranked(combined_variable_scan(req, {"in flight": fl})["in flight"])[0]
     v = (req.n_hpc - bias * req.nrf - mach_bias * req.Mach).to_numpy()
     v_design = 1.0 - bias
     step = 0.01
@@ -263,7 +271,7 @@ def propose():
         sched = BleedValveSchedule(knots=tuple(knots), fan_bias=bias, mach_bias=mach_bias,
                                    core_close=(a, a + 0.04))
         f = np.asarray(sched.unlimited_opening(req.n_hpc.to_numpy(), req.nrf.to_numpy(),
-                                            req.Mach.to_numpy()), float).ravel()
+                                               req.Mach.to_numpy()), float).ravel()
         short = int((fl & req.reached.to_numpy() & (f < need - 1e-9)).sum())
         print(f"core closing band {a:.2f}-{a + 0.04:.2f}: {short} flight points short of need")
         if short == 0 and close is None:
