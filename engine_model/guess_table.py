@@ -32,6 +32,7 @@ TABLE_MACH = np.linspace(0.0, 0.9, 10)
 TABLE_T2 = (540.0, 470.0, 400.0)  # degR, descending
 TABLE_ALT = (0.0, 10000.0)  # ft: the ground-idle and the flight-idle controller modes
 I_T40 = 4  # position of T40 among the unknowns (stored divided by T2)
+_CHUNK = 4096  # points per block of the lookup
 
 
 class GuessTable:
@@ -46,6 +47,11 @@ class GuessTable:
         self.t40_des_r = t40_des_k * R_PER_K
         self.nf_demand_pct = nf_demand_pct
         self.flight_weight = flight_weight
+        # the nodes as rows (mode, T2, pct, Mach) of [x] and of [x | dx/dtheta]: the health
+        # correction is linear in the node values, so it interpolates with them
+        n_x = table.shape[-1]
+        self._rows_x = np.ascontiguousarray(table.reshape(-1, n_x))
+        self._rows_th = np.hstack([self._rows_x, dth.reshape(len(self._rows_x), -1)])
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -130,25 +136,37 @@ class GuessTable:
             np.clip(w[:, 1] / (TABLE_MACH[1] - TABLE_MACH[0]), 0, len(TABLE_MACH) - 1),
         ]
         sizes = (len(t2n), len(TABLE_PCT), len(TABLE_MACH))
-        idx, frac = [], []
+        n_x = self.table.shape[-1]
+        # nodes flattened to rows [x | dx/dtheta]: one gather per corner of the cell
+        rows = self._rows_x if theta is None else self._rows_th
+        flat = np.zeros(len(w), np.int64)
+        lo, hi = [], []
         for c, nmax in zip(coords, sizes, strict=True):
-            i = np.clip(np.floor(c).astype(int), 0, nmax - 2)
-            idx.append(i)
-            frac.append(c - i)
+            i = np.clip(np.floor(c).astype(np.int64), 0, nmax - 2)
+            flat = flat * nmax + i
+            f = c - i
+            lo.append(1.0 - f)
+            hi.append(f)
+        strides = np.cumprod((1,) + sizes[:0:-1])[::-1]  # row offsets of (T2, pct, Mach)
         wa = np.asarray(self.flight_weight(w[:, 0]), float)
-        x = np.zeros((len(w), self.table.shape[-1]))
-        th = None if theta is None else np.asarray(theta, float)
-        for mode, mode_wgt in ((0, 1.0 - wa), (1, wa)):
+        n_nodes = int(np.prod(sizes))
+        corners = []  # (mode, bits, row offset) of the 16 corners of a cell in both modes
+        for mode in (0, 1):
             for corner in range(8):
                 bits = [(corner >> k) & 1 for k in range(3)]
-                wgt = mode_wgt * np.ones(len(w))
-                ii = []
-                for b, i, f in zip(bits, idx, frac, strict=True):
-                    wgt = wgt * (f if b else 1.0 - f)
-                    ii.append(i + b)
-                x += wgt[:, None] * self.table[mode, ii[0], ii[1], ii[2]]
-                if th is not None:
-                    g = self.dth[mode, ii[0], ii[1], ii[2]]
-                    x += wgt[:, None] * np.einsum("nkt,nt->nk", g, th)
+                corners.append((mode, bits, mode * n_nodes + int(np.dot(bits, strides))))
+        x = np.empty((len(w), n_x))
+        th = None if theta is None else np.asarray(theta, float)
+        for a in range(0, len(w), _CHUNK):  # chunks keep the gathered rows in cache
+            sl = slice(a, a + _CHUNK)
+            acc = np.zeros((len(flat[sl]), rows.shape[1]))
+            for mode, bits, off in corners:
+                wgt = wa[sl] if mode else 1.0 - wa[sl]
+                for b, f_lo, f_hi in zip(bits, lo, hi, strict=True):
+                    wgt = wgt * (f_hi[sl] if b else f_lo[sl])
+                acc += wgt[:, None] * rows[flat[sl] + off]
+            x[sl] = acc[:, :n_x]
+            if th is not None:
+                x[sl] += np.einsum("nkt,nt->nk", acc[:, n_x:].reshape(len(acc), n_x, -1), th[sl])
         x[:, I_T40] *= w[:, 3] / self.t40_des_r
         return x

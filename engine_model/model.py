@@ -128,9 +128,12 @@ class EngineModel:
         y = ca.vertcat(*[out[k] for k in OUTPUT_NAMES])
         self.stations_expr = st
         J = ca.densify(ca.jacobian(res, x))
-        f_res = ca.Function("hyprog_residual", [x, w, th, p], [res])
-        f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y])
-        f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J])
+        # common subexpressions (the gas-property polynomials of one temperature, used by
+        # several stations) are evaluated once in the generated code
+        cse = {"cse": True}
+        f_res = ca.Function("hyprog_residual", [x, w, th, p], [res], cse)
+        f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y], cse)
+        f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
         # exact sensitivities by the implicit function theorem (module docstring)
         n_th, n_w = th.numel(), w.numel()
         Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w),
@@ -141,7 +144,7 @@ class EngineModel:
         sens_out = [dth, dw]
         if p.numel():
             sens_out.append(ca.jacobian(y, p) - dy_dx @ Jinv_r[:, n_th + n_w:])
-        f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out)
+        f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out, cse)
         # dx*/dtheta, used only to tabulate starting guesses
         f_dxdth = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, :n_th]])
         self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
@@ -193,16 +196,18 @@ class EngineModel:
 
     def _continuation(self, w_target, x_start, theta, steps=CONTINUATION_STEPS) -> SolveResult:
         """Walk from sea-level static (theta = 0) to ``w_target``, ``theta`` in ``steps``
-        Newton solves; the result's ``iterations`` is the total over all steps."""
+        Newton solves: one point (``w_target`` (4,)) or a batch ((k, 4), each on its own path,
+        solved together); the result's ``iterations`` is the total over all steps."""
+        w_t = np.atleast_2d(np.asarray(w_target, float))
+        th = np.atleast_2d(np.asarray(theta, float))
+        x = np.broadcast_to(np.asarray(x_start, float), (len(w_t), N_UNKNOWNS)).copy()
         w0 = np.array([0.0, 0.0, 100.0, T_STD_R])
-        x = x_start
-        total = 0
+        total = np.zeros(len(w_t), int)
         for lam in np.linspace(0, 1, steps + 1)[1:]:
-            r = self._newton((w0 + lam * (w_target - w0))[None, :], theta[None, :] * lam,
-                             x[None, :], None, 1e-10, 60)
-            x = r.x[0]
-            total += int(r.iterations[0])
-        r.iterations[0] = total
+            r = self._newton(w0 + lam * (w_t - w0), th * lam, x, None, 1e-10, 60)
+            x = r.x
+            total += r.iterations
+        r.iterations = total
         return r
 
     # ------------------------------------------------------------------ arguments
@@ -287,13 +292,12 @@ class EngineModel:
             bad = bad[~r.converged]
         if bad.size and bad.size <= MAX_CONTINUATION_POINTS:
             pm = self.p_matrix(p, len(w))
-            for i in bad:
-                r = self._continuation(w[i], np.array(X_DESIGN, float), th[i])
-                r2 = self._newton(w[i:i + 1], th[i:i + 1], r.x, pm[i:i + 1], tol, max_iter)
-                self._reject_off_map(r2)
-                # iterations actually spent: the failed attempts, the continuation, the polish
-                r2.iterations = r2.iterations + r.iterations
-                res.put([i], r2)
+            r = self._continuation(w[bad], np.array(X_DESIGN, float), th[bad])
+            r2 = self._newton(w[bad], th[bad], r.x, pm[bad], tol, max_iter)
+            self._reject_off_map(r2)
+            # iterations actually spent: the failed attempts, the continuation, the polish
+            r2.iterations = r2.iterations + r.iterations
+            res.put(bad, r2)
 
     def solve(self, w, theta=None, p=None, x0=None, tol=1e-10, max_iter=30,
               check=True) -> SolveResult:
