@@ -4,6 +4,8 @@ Every function takes and returns SI quantities (K, Pa, kg/s, J/kg, W) and works 
 CasADi symbols alike. The assembly into a two-spool turbofan is in :mod:`turbofan`.
 """
 
+from dataclasses import dataclass
+
 import casadi as ca
 
 from . import gas
@@ -122,13 +124,53 @@ def smooth_max(a, b, eps):
     return 0.5 * (a + b + ca.sqrt((a - b) ** 2 + eps**2))
 
 
-def convergent_nozzle(Pt, Tt, far, P_amb, area, cd=0.98, cv=0.99, eps=2e-3):
+@dataclass(frozen=True)
+class NozzleDischarge:
+    """Discharge (flow) coefficient of a convergent nozzle versus its pressure ratio
+    ``NPR = Pt / P_amb``::
+
+        Cd(NPR) = cd_inf - (cd_inf - cd_1) exp(-(NPR - 1) / npr_scale)
+
+    The effective throat area of a convergent nozzle is smaller than its geometric area (the
+    jet goes on contracting after the exit plane, and the boundary layer displaces flow); the
+    contraction shrinks as the pressure ratio rises, and it goes on shrinking beyond the
+    critical pressure ratio because the sonic line is curved: the mean velocity in the exit
+    plane is still subsonic when the nozzle first chokes and rises with the downstream
+    expansion (Grey & Wilsted, *Performance of conical jet nozzles in terms of flow and
+    velocity coefficients*, NACA TR-933, 1949, pressure ratios 1-2.8; Bragg, *Effect of
+    compressibility on the discharge coefficient of orifices and convergent nozzles*,
+    J. Mech. Eng. Sci. 2, 1960). The exponential approach from ``cd_1`` (NPR -> 1) to
+    ``cd_inf`` is a smooth monotone form of that behaviour; the values in
+    :class:`design.DesignSpec` are class-typical for short conical nozzles (they depend on the
+    cone angle), not read from one figure. Only the ratio to the design point's Cd acts on the
+    cycle: the nozzle areas are sized at the design point with it.
+
+    The velocity coefficient stays constant: Grey & Wilsted find it constant below the
+    critical pressure ratio and falling slightly above it, by an amount that depends on the
+    pressure ratio only and not on the geometry - the incomplete expansion of a convergent
+    nozzle, which :func:`convergent_nozzle` computes explicitly through its pressure thrust.
+    """
+
+    cd_1: float = 0.93
+    cd_inf: float = 0.985
+    npr_scale: float = 0.7
+
+    def __call__(self, npr):
+        return self.cd_inf - (self.cd_inf - self.cd_1) * ca.exp(-(npr - 1.0) / self.npr_scale)
+
+
+def convergent_nozzle(Pt, Tt, far, P_amb, area, cd, cv=0.99, eps=2e-3):
     """Convergent nozzle: mass flow it passes and gross thrust, choked or not.
 
-    The throat static-to-total pressure ratio is ``max(P_amb/Pt, critical)`` with a smooth max,
+    ``cd`` is a :class:`NozzleDischarge` (evaluated at ``Pt / P_amb``) or a fixed value. The
+    throat static-to-total pressure ratio is ``max(P_amb/Pt, critical)`` with a smooth max,
     so the switch between unchoked and choked flow is C-infinity. Expansion to the throat uses
     the real-gas entropy function; the critical ratio uses gamma at the sonic temperature.
+    ``Fg = Cv W V + A (Ps - P_amb)``: momentum with the velocity coefficient, plus the
+    pressure thrust of an under-expanded (choked) jet on the geometric area.
     """
+    if callable(cd):
+        cd = cd(Pt / P_amb)
     g_t = gas.gamma(Tt, far)
     T_star = 2.0 * Tt / (g_t + 1.0)
     g = gas.gamma(T_star, far)
@@ -141,7 +183,7 @@ def convergent_nozzle(Pt, Tt, far, P_amb, area, cd=0.98, cv=0.99, eps=2e-3):
     rho = Ps / (gas.R_GAS * Ts)
     W = cd * area * rho * V
     Fg = W * cv * V + area * (Ps - P_amb)
-    return {"W": W, "Fg": Fg, "Ps": Ps, "V": V, "x": x, "x_crit": x_crit}
+    return {"W": W, "Fg": Fg, "Ps": Ps, "V": V, "x": x, "x_crit": x_crit, "Cd": cd}
 
 
 def mach_from_flow(W, Tt, Pt, area, far=0.0, mach_guess=0.3, n_iter=5):

@@ -113,7 +113,7 @@ class HPOfftake(Effect):
     description = "Shaft power taken from the HP spool by the accessory gearbox."
     params = (Param("P_kw", "kW", 0.0, "HP shaft power extraction", 150.0, (0.0, 400.0),
                     valid=(0.0, 1000.0)),)
-    moves = ("Wf", "Nc", "T24", "T40", "T48", "T50", "P24", "P30", "P40")
+    moves = ("Wf", "Nc", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
 
@@ -134,7 +134,7 @@ class Reynolds(Effect):
         Param("flow_ratio", "-", 0.5, "flow-capacity change / efficiency change", 0.5,
               (0.0, 1.0), valid=(0.0, 2.0)),
     )
-    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24")
+    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
     signature = {"SLS": {"Wf": 0, "T48": 0, "T50": 0, "Nc": 0},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1}}
 
@@ -183,7 +183,7 @@ class NozzleArea(Effect):
         Param("dA18", "-", 0.0, "fractional change of the bypass nozzle throat area", 0.0,
               (-0.05, 0.05), valid=(-0.2, 0.2)),
     )
-    moves = ("Wf", "Nc", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
+    moves = ("Wf", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"P50": -1, "T50": -1}, "CRZ": {"P50": -1, "T50": -1}}
 
     def apply(self, hook, value, p, ctx):

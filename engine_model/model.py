@@ -153,7 +153,7 @@ class EngineModel:
         if self.compiled:
             name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
             hot = compile_functions(
-                name + "_hot", [f_res, f_resjac], opt="-O2",
+                name + "_hot", [f_res, f_resjac], opt="-O3",
                 extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
                 extra_flags=(f"-DRES_FN={f_res.name()}", f"-DRESJAC_FN={f_resjac.name()}"),
                 optional_flags=("-fopenmp",))

@@ -32,7 +32,7 @@ The selection ``n = max(min(n_cmd, n_N2max, n_T48max), n_N2min)`` is written as 
 the unknown fan speed (:meth:`ThrottleSchedule.controller_residual`): each limit contributes an
 error that rises with fan speed and is zero on its limit; ``min`` of speeds is ``max`` of errors
 and vice versa. The minima and maxima are blended over a band of ``CONTROL_BAND`` (in error
-units, fan-speed fractions) with a C-infinity step (:func:`components.smooth_step`) and are
+units, fan-speed fractions) monotonically and C3-smoothly (:func:`band_max`) and are
 exact outside it: away from every limit the controller holds exactly the schedule, so the fan
 speed does not depend on the health parameters at all (as in C-MAPSS).
 
@@ -46,7 +46,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .components import smooth_step
 from .hermite import fritsch_carlson_slopes, hermite, is_casadi
 from .units import T_STD_K
 
@@ -67,10 +66,24 @@ def smooth_min(a, b, k=LIMIT_SHARPNESS):
 
 
 def band_max(a, b, band=CONTROL_BAND):
-    """C-infinity maximum, exact outside ``|a - b| < band``: ``b + (a - b) step((a - b)/(2 band)
-    + 1/2)``."""
+    """Smooth maximum, exact outside ``|a - b| < band`` and non-decreasing in ``a`` and in
+    ``b`` (a min/max selection must be: a rising input never lowers the selected value)::
+
+        band_max(a, b) = b + G(a - b),   G(d) = int_{-band}^{d} S((u + band) / (2 band)) du
+                       = 2 band P(t) + max(d - band, 0),   t = clip((d + band)/(2 band), 0, 1)
+
+    with ``S(t) = 6t^5 - 15t^4 + 10t^3`` the C2 smootherstep and ``P(t) = t^6 - 3t^5 +
+    5/2 t^4`` its integral: ``dG/dd = S`` lies in [0, 1], so both partial derivatives
+    (``S`` and ``1 - S``) are non-negative; ``G`` is C3. (The blend ``b + d step(d)`` is
+    smooth too but its slope in ``a`` turns negative inside the band.)"""
     d = a - b
-    return b + d * smooth_step(d / (2.0 * band) + 0.5)
+    if is_casadi(d):
+        t = ca.fmin(ca.fmax((d + band) / (2.0 * band), 0.0), 1.0)
+        beyond = ca.fmax(d - band, 0.0)
+    else:
+        t = np.clip((d + band) / (2.0 * band), 0.0, 1.0)
+        beyond = np.maximum(d - band, 0.0)
+    return b + 2.0 * band * t**4 * (t * (t - 3.0) + 2.5) + beyond
 
 
 def band_min(a, b, band=CONTROL_BAND):

@@ -2,8 +2,16 @@
 
 Stations (SAE ARP755): 0 free stream, 2 fan face, 21 fan exit (both streams), 15 bypass duct,
 18 bypass nozzle throat, 24 LPC exit, 25 HPC inlet, 30 HPC exit, 40 burner exit, 41 HPT rotor
-inlet (after the HPT coolant W31 joins), 45/48 HPT exit (``P45``, ``T48``), 49 LPT rotor inlet
-(after the LPT coolant W32 joins), 50 LPT exit, 8 core nozzle throat.
+inlet (after the vane share of the HPT coolant W31 joins), 43 HPT rotor exit, 45/48 HPT exit
+after the rotor share of W31 mixes in (``P45``, ``T48``), 49 LPT rotor inlet (after the LPT
+coolant W32 joins), 50 LPT exit, 8 core nozzle throat.
+
+Turbine cooling air is accounted as performance codes do (Walsh & Fletcher, *Gas Turbine
+Performance*, 2nd ed., ch. 5, turbine cooling; Kurzke's GasTurb): nozzle-guide-vane coolant
+mixes into the gas upstream of the rotor, so it expands through the rotor and does work;
+rotor coolant leaves the blades and mixes downstream, doing no work in that stage
+(``DesignSpec.f_hpt_vane`` splits W31). The work the rotor spends pumping its coolant
+outward is not modelled separately: at the design point it is part of the HPT efficiency.
 
 Off-design the cycle is a residual system ``r(x; w, theta, p) = 0`` in eight unknowns ``x``::
 
@@ -149,8 +157,9 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     brn = components.burner(T30, P30, W3, T40, dp_b, eta_b)
     far4, Wf, P40, W4 = brn["far"], brn["Wf"], brn["P_out"], brn["W_out"]
 
-    # --- HPT (coolant W31 joins at rotor inlet) ---
-    m41 = components.mixer(W4, T40, far4, W31, T30, 0.0)
+    # --- HPT: the vane share of the coolant W31 joins before the rotor (41) and does work
+    # there, the rotor share mixes after the rotor (43 -> 45); Walsh & Fletcher ch. 5 ---
+    m41 = components.mixer(W4, T40, far4, s.f_hpt_vane * W31, T30, 0.0)
     W41, T41, far41 = m41["W"], m41["T"], m41["far"]
     pr_hpt = prh_rel * d.pr_hpt_des
     n_hpt = n_hpc * ca.sqrt(T24 / T41) / math.sqrt(des["T24"] / des["T41"])
@@ -158,11 +167,13 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     hpt = components.turbine(d.hpt, T41, P40, far41, pr_hpt, Nc,
                              hook("HPT_eff_mod", hpt_eff, **at41),
                              hook("HPT_flow_mod", hpt_flow, **at41))
-    T48, P45, W48 = hpt["T_out"], hpt["P_out"], W41
+    T43, P45 = hpt["T_out"], hpt["P_out"]
+    m45 = components.mixer(W41, T43, far41, (1.0 - s.f_hpt_vane) * W31, T30, 0.0)
+    W48, T48, far48 = m45["W"], m45["T"], m45["far"]
     P_offtake = hook("P_offtake_HP", 0.0 * W25)  # W
 
     # --- LPT (coolant W32 joins at rotor inlet) ---
-    m49 = components.mixer(W48, T48, far41, W32, T_int, 0.0)
+    m49 = components.mixer(W48, T48, far48, W32, T_int, 0.0)
     W49, T49, far49 = m49["W"], m49["T"], m49["far"]
     pr_lpt = prl_rel * d.pr_lpt_des
     n_lpt = n_fan * ca.sqrt(T2 / T49) / math.sqrt(des["T2"] / des["T49"])
@@ -197,7 +208,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
         NRf=Nf / ca.sqrt(T2 / T_STD_K), PCNfR_dmd=pct_dmd, W2=W2, T21=T21, P21=P21, W22=W22,
         T24=T24, P24=P24, W13=W13, P15=P15, P25=P25, W25=W25, T30=T30, P30=P30, Ps30=Ps30,
         W31=W31, W32=W32, W3=W3, T40=T40, P40=P40, W4=W4, Wf=Wf, far4=far4, T41=T41, W41=W41,
-        T48=T48, P45=P45, W48=W48, T49=T49, W49=W49, T50=T50, P50=P50, W50=W50, far50=far49,
+        far41=far41, T43=T43, far48=far48, T48=T48, P45=P45, W48=W48, T49=T49, W49=W49,
+        T50=T50, P50=P50, W50=W50, far50=far49,
         Fn=Fn, Fg_bypass=byp["Fg"], Fg_core=core["Fg"], P_hpc=P_hpc, P_lp=P_lp,
         P_hpt=W41 * hpt["dh"], P_lpt=W49 * lpt["dh"], P_offtake=P_offtake, W_cust=W_cust,
         W_bleed_24=W_bleed_24, W_vbv=W_vbv, T15=m15["T"], T_int=T_int, eta_fan=fan["eta"],
@@ -207,6 +219,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
         pr_surge_lpc=lpc["PR_surge"], pr_surge_hpc=hpc["PR_surge"], wc_fan=fan["Wc"],
         wc_lpc=lpc["Wc"], wc_hpc=hpc["Wc"], pr_hpt=pr_hpt, pr_lpt=pr_lpt,
         x18=byp["x"], x8=core["x"], x18_crit=byp["x_crit"], x8_crit=core["x_crit"],
+        Cd18=byp["Cd"], Cd8=core["Cd"],
     )
     return res, st
 

@@ -12,7 +12,7 @@ import pytest
 
 from engine_model import THETA_NAMES, EngineModel, atmosphere, gas, turbofan
 from engine_model.design import DesignSpec
-from engine_model.schedule import ThrottleSchedule
+from engine_model.schedule import ThrottleSchedule, band_max, band_min
 
 from .conftest import w_rows
 
@@ -95,6 +95,22 @@ def test_schedule_keeps_the_cmapss_points_and_idles():
     cmd = s.command_pct(np.array([100.0, 105.0]), np.array([288.15, 330.0]))
     assert cmd[0] == pytest.approx(100.0, abs=1e-8)
     assert cmd[1] * np.sqrt(330.0 / 288.15) <= s.n1_max_pct + 1e-9
+
+
+def test_limiter_selection_is_monotone_and_exact_outside_its_band():
+    """The controller's smooth min/max never lets a rising input lower the selection (the
+    flight-idle to schedule hand-over must not dip) and is the exact min/max outside the
+    band."""
+    band = 0.002
+    a = np.linspace(-3 * band, 3 * band, 20001)
+    for b in (-1e-3, 0.0, 0.5):
+        a_ = a + b
+        for f, exact in ((band_max, np.maximum), (band_min, np.minimum)):
+            y = f(a_, b, band)
+            assert np.all(np.diff(y) >= -1e-15)  # in a
+            assert np.all(np.diff(f(b, a_, band)) >= -1e-15)  # in b
+            out = np.abs(a_ - b) >= band
+            np.testing.assert_allclose(y[out], exact(a_, b)[out], rtol=0, atol=1e-15)
 
 
 # ------------------------------------------------------------------ envelope grid
