@@ -646,7 +646,7 @@ def test_thrust_lapse_at_max_climb(model):
     runs at about 100 % physical fan speed. With C-MAPSS's throttle convention (TRA 100 =
     100 % *corrected* fan speed at every altitude) that is 108 % corrected at 35 kft, TRA
     about 130, beyond the TRA range of the data (<= 105): the point is solved with the
-    envelope check off. At TRA 100 (92.6 % physical fan speed) the lapse is 0.144, which is
+    envelope check off. At TRA 100 (92.6 % physical fan speed) the lapse is 0.139, which is
     the convention's consequence, not a defect of the cycle (README, "Throttle schedule").
     """
     alt, mach = 35000.0, 0.8
