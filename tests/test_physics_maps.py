@@ -99,8 +99,8 @@ def test_schedule_keeps_the_cmapss_points_and_idles():
 
 def test_nozzle_discharge_coefficient_rises_with_pressure_ratio_past_choke(model):
     """Cd of the convergent nozzles rises with NPR, below and above the critical ratio, and
-    stays between its low-NPR and high-NPR limits; in the engine the choked nozzles at
-    cruise (the bypass one choked) pass more per unit area than at sea-level take-off."""
+    stays between its low-NPR and high-NPR limits; in the engine both nozzles pass more per
+    unit area at cruise (the bypass nozzle choked) than at sea-level take-off."""
     cd = model.design.spec.nozzle_cd
     npr = np.linspace(1.0, 6.0, 501)
     c = np.array([float(cd(v)) for v in npr])
