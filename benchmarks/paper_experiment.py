@@ -17,6 +17,17 @@ Steps, each skipped or resumed when its output is already there:
 It takes many hours on two CPU cores (about 55 training runs; a CNN epoch over the
 development set is about a minute of CPU); ``--device cuda`` where a GPU is available.
 Options: ``--seeds``, ``--ablations``, ``--epochs``, ``--device`` are passed to step 3.
+
+Across sessions and machines. A session lasts three hours and may start on a fresh machine,
+so the run cache in ``out/`` alone does not carry the experiment to its end. Every finished
+run's record (``result.json``) and test predictions (``predictions.parquet``, plus
+``per_cycle.parquet`` for the baseline; not the trained weights) are kept under
+``benchmarks/results/paper/runs/<key>/`` to be committed: ``--store-only`` copies the finished
+runs there at any moment (the experiment may be running: a run's ``result.json`` is written
+last and atomically), and every start first copies the committed runs back into
+``out/paper/runs/``. A run's key hashes its configuration *and* every value of the feature
+table (``prognostics.experiment``), so a committed run is reused only when steps 1-2 gave
+the same table bit for bit (same code, seed and libraries); otherwise it is trained again.
 """
 
 from __future__ import annotations
@@ -31,6 +42,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out"
 RESULTS = ROOT / "benchmarks" / "results" / "paper"
+STORE = RESULTS / "runs"  # finished runs' records and predictions, committed
+KEPT = ("result.json", "predictions.parquet", "per_cycle.parquet")
 
 
 def hyprog(*args: str) -> None:
@@ -40,14 +53,37 @@ def hyprog(*args: str) -> None:
     subprocess.run(cmd, cwd=ROOT, check=True)
 
 
+def copy_runs(src: Path, dest: Path) -> int:
+    """Copy the kept files of every finished run (one with ``result.json``) in ``src`` that
+    ``dest`` lacks; ``result.json`` last, so that a copy cut short is not a finished run."""
+    copied = 0
+    for run in sorted(src.glob("*/result.json")):
+        key = run.parent.name
+        if (dest / key / "result.json").is_file():
+            continue
+        (dest / key).mkdir(parents=True, exist_ok=True)
+        for name in (*KEPT[1:], KEPT[0]):
+            if (run.parent / name).is_file():
+                shutil.copy2(run.parent / name, dest / key / name)
+        copied += 1
+    return copied
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="5")
     ap.add_argument("--ablations", default="all")
     ap.add_argument("--epochs", type=int)
     ap.add_argument("--device", default="auto")
+    ap.add_argument("--store-only", action="store_true",
+                    help="copy the finished runs to benchmarks/results/paper/runs and stop")
     a = ap.parse_args()
     fleet, features, paper = OUT / "ds02", OUT / "ds02-features", OUT / "paper"
+    if a.store_only:
+        print(f"stored {copy_runs(paper / 'runs', STORE)} finished runs in "
+              f"{STORE.relative_to(ROOT)}")
+        return
+    print(f"restored {copy_runs(STORE, paper / 'runs')} committed runs", flush=True)
     if not fleet.exists():
         hyprog("simulate", "--preset", "ds02", "--rate", "0.1", "--seed", "0",
                "--out", str(fleet))
@@ -67,6 +103,7 @@ def main() -> None:
             shutil.copy2(f, dest)
             copied += 1
     print(f"copied {copied} tables and figures to {RESULTS.relative_to(ROOT)}")
+    print(f"stored {copy_runs(paper / 'runs', STORE)} finished runs in {STORE.relative_to(ROOT)}")
 
 
 if __name__ == "__main__":

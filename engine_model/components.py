@@ -34,8 +34,10 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
     """Compressor on its map: corrected flow, exit state, specific work and stall margin.
 
     The map (:class:`maps.CompressorMap`) gives the isentropic head, hence the pressure
-    ratio, at ``(n, beta)``; the efficiency (scaled by ``1 + eff_mod``) gives the specific
-    work ``dh = head / eta``. The stall margin is taken at constant corrected speed (SAE
+    ratio, at ``(n, beta)``; the specific work is the map's Euler work divided by
+    ``1 + eff_mod`` (``dh = head / eta`` with the efficiency scaled by ``1 + eff_mod``; written
+    without the division by ``eta``, which passes through 0 where the choke line continues
+    below PR = 1). The stall margin is taken at constant corrected speed (SAE
     ARP1420; Walsh & Fletcher ch. 5), ``SM = 100 (PR_surge(N) / PR - 1)``, against the surge
     line of the compressor's own flow capacity (:meth:`maps.CompressorMap.beta_surge`).
     """
@@ -47,7 +49,7 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
     cp_in = gas.cp(T_in, far)
     T_is = gas.t_from_h(h_in + head, far, T_in + head / cp_in)
     pr = gas.pressure_ratio_isentropic(T_in, T_is, far)
-    dh = head / eta
+    dh = cmap.work(n, beta) * T_in / (1.0 + eff_mod)  # = head / eta
     T_out = gas.t_from_h(h_in + dh, far, T_in + dh / cp_in)
     # surge line at the same corrected speed
     head_s = cmap.head(n, cmap.beta_surge(n, flow_mod)) * T_in

@@ -16,7 +16,7 @@ work coefficient ``Dh / U^2`` - rather than in ``beta``::
     phi_w(n, b) = Wc / (Wc_des n^k_work (1 + flow_mod)) = phi_hat n^(k_ch - k_work)
     Dh / T_in   = w_des n^2 (1 - kappa (phi_w - 1))                    specific work (Euler)
     eta_map     = eta_pk exp(-c_phi (phi_w/phi_opt1 - 1)^2 - c_n (n - n_pk)^2) chi(b)
-    chi(b)      = 1 / (1 + exp(-mu (b - b_ch)))                        choke (shock) loss
+    chi(b)      = 1 / (1 + exp(-mu (b - b_ch))) - softplus(mu (b_d - b))  choke (shock) loss
     Dh_is / T_in = eta_map Dh / T_in                                   isentropic head -> PR
 
 1. *Euler work line.* The specific work of a stage is ``Dh = U^2 (1 - phi (tan a1 + tan b2))``
@@ -39,6 +39,26 @@ work coefficient ``Dh / U^2`` - rather than in ``beta``::
    isentropic head to zero while the flow stays at choke - the vertical choke end of every
    speed line. ``b_ch`` is where the flow is 99.9 % of the choke flow. A fan's low-speed
    lines reach zero work (windmilling) before they choke.
+   *Past PR = 1.* Deeper in choke the flow stays at the choke flow and the pressure ratio
+   goes on falling below 1: the blading still does its Euler work but the shock and
+   rear-stage losses exceed it, the rear stages acting as turbines or throttles (Cumpsty ch. 4,
+   the "turbining" of rear stages at low speed; Walsh & Fletcher ch. 5.2, maps extended below
+   PR 1 for windmilling and starting). The first term of ``chi`` alone stops at PR = 1
+   (``chi -> 0+``), so an engine whose booster must pass more corrected flow than it can at
+   PR >= 1 (ground idle with a heavily degraded booster) had no steady state. The second
+   term continues the choke line: ``softplus(x) = ln(1 + e^x)`` with
+   ``b_d = b_ch - 9 / mu``. Above ``b_d`` it is ``e^(mu (b_d - b))``, negligible where the
+   compressor is not choked, and it overtakes the first term (``e^(-mu (b_ch - b))`` in
+   choke) at ``b_ch - 4.5 / mu``, where the head passes zero (PR = 1); below ``b_d`` the
+   isentropic head falls linearly in ``b`` (``mu`` island heads per map unit) to negative
+   values (``PR < 1``, the efficiency ``Dh_is / Dh`` negative: the compressor dissipates
+   more than its work). The flow is within 5e-5 of the choke flow
+   from ``b_d`` down, so the continuation is the vertical choke end of the speed line
+   extended downward; how ``b`` runs along a vertical line is a choice of parametrization,
+   not a property of the map. Where the map was used before, the second term changes the
+   head by ``softplus(mu (b_d - b)) / chi_1(b)`` of itself: 2.5e-4 at ``b_ch``, 3e-7 at
+   ``b_ch + 2``, below 1e-8 above ``b_ch + 3.5`` (99 % of converged random envelope
+   points; the lowest booster point of 100,000 lies at ``b_ch - 0.81``, changed by 1.7 %).
 3. *Efficiency island.* Profile loss is a bucket in incidence, i.e. in the flow coefficient
    relative to the optimum-incidence one (Cumpsty ch. 5; Dixon & Hall ch. 3): a Gaussian in
    ``phi_w/phi_opt1 - 1``, positive everywhere; the efficiency falls away from the
@@ -91,6 +111,7 @@ import casadi as ca
 import numpy as np
 
 CHOKE_FLOW_FRACTION = 0.999  # chi is centred where phi is this fraction of the choke flow
+DEEP_CHOKE = 9.0  # mu (b_ch - b_d): chi's continuation below PR 1 (PR = 1 at b_ch - 4.5 / mu)
 SURGE_FLOOR = 1e-4  # smooth floor of phi_ch1 / phi_stall - 1 in the surge-line formula
 
 
@@ -152,8 +173,17 @@ class CompressorMap:
         """Euler specific work of the map / inlet total temperature [J/(kg K)]."""
         return self.work_des * n**2 * (1.0 - self.kappa * (self.phi_work(n, beta) - 1.0))
 
+    @property
+    def beta_deep_choke(self) -> float:
+        """Map line ``b_d`` from which the choke line continues below PR = 1."""
+        return self.beta_choke - DEEP_CHOKE / self.mu
+
     def _chi(self, beta):
-        return 1.0 / (1.0 + ca.exp(-self.mu * (beta - self.beta_choke)))
+        """Choke factor of the isentropic head: the shock loss of the logistic first term,
+        continued below PR = 1 by ``softplus(mu (b_d - b))`` (module docstring, 2.)."""
+        x = self.mu * (self.beta_deep_choke - beta)
+        softplus = ca.fmax(x, 0.0) + ca.log1p(ca.exp(-ca.fabs(x)))  # ln(1 + e^x), no overflow
+        return 1.0 / (1.0 + ca.exp(-self.mu * (beta - self.beta_choke))) - softplus
 
     def _eta_shape(self, n, beta):
         x = self.phi_work(n, beta) / self.phi_opt1 - 1.0
@@ -182,8 +212,14 @@ class CompressorMap:
         return ca.log(g / self.d_choke) / self.lam
 
     def on_map(self, beta) -> np.ndarray:
-        """Where a root is meaningful: from deep choke (PR ~ 1) to at most one map unit
-        beyond the new-engine surge line at 20 % speed (the highest surge line)."""
+        """Where a root is meaningful: from deep choke (``b_ch - 4``, one map unit below the
+        start of the continuation past PR = 1, where the isentropic head is -3 times the
+        island's: a total-pressure loss no compressor runs at) to at most one map unit
+        beyond the new-engine surge line at 20 % speed (the highest surge line). On the
+        high-pressure-ratio lines (HPC, fan near design speed) the lowest part of that range
+        lies below PR 0.2, where the isentropic exit temperature leaves the gas model's range;
+        no root goes there (of 100,000 random envelope points the HPC and fan stay above
+        ``b_ch + 3.7``; the booster, choked at ground idle, reaches ``b_ch - 4.0``)."""
         b = np.asarray(beta, float)
         return (b > self.beta_choke - 4.0) & (b < float(self.beta_surge(0.2)) + 1.0)
 
