@@ -33,6 +33,7 @@ the same table bit for bit (same code, seed and libraries); otherwise it is trai
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -40,6 +41,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout, not whichever tree is installed
+from engine_model.datasets import output_lock  # noqa: E402
+from prognostics.experiment import check_experiment_out  # noqa: E402
+
 OUT = ROOT / "out"
 RESULTS = ROOT / "benchmarks" / "results" / "paper"
 STORE = RESULTS / "runs"  # finished runs' records and predictions, committed
@@ -55,16 +60,20 @@ def hyprog(*args: str) -> None:
 
 def copy_runs(src: Path, dest: Path) -> int:
     """Copy the kept files of every finished run (one with ``result.json``) in ``src`` that
-    ``dest`` lacks; ``result.json`` last, so that a copy cut short is not a finished run."""
+    ``dest`` lacks; ``result.json`` last and by rename, so that a copy cut short is never a
+    finished run (its other files are copied again next time)."""
     copied = 0
     for run in sorted(src.glob("*/result.json")):
         key = run.parent.name
         if (dest / key / "result.json").is_file():
             continue
         (dest / key).mkdir(parents=True, exist_ok=True)
-        for name in (*KEPT[1:], KEPT[0]):
+        for name in KEPT[1:]:
             if (run.parent / name).is_file():
                 shutil.copy2(run.parent / name, dest / key / name)
+        tmp = dest / key / f".result.json.tmp-{os.getpid()}"
+        shutil.copy2(run, tmp)
+        os.replace(tmp, dest / key / "result.json")
         copied += 1
     return copied
 
@@ -83,7 +92,9 @@ def main() -> None:
         print(f"stored {copy_runs(paper / 'runs', STORE)} finished runs in "
               f"{STORE.relative_to(ROOT)}")
         return
-    print(f"restored {copy_runs(STORE, paper / 'runs')} committed runs", flush=True)
+    check_experiment_out(paper)  # an experiment's folder, empty or absent: nothing else
+    with output_lock(paper):  # not while an experiment writes there
+        print(f"restored {copy_runs(STORE, paper / 'runs')} committed runs", flush=True)
     if not fleet.exists():
         hyprog("simulate", "--preset", "ds02", "--rate", "0.1", "--seed", "0",
                "--out", str(fleet))

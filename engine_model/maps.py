@@ -41,24 +41,25 @@ work coefficient ``Dh / U^2`` - rather than in ``beta``::
    lines reach zero work (windmilling) before they choke.
    *Past PR = 1.* Deeper in choke the flow stays at the choke flow and the pressure ratio
    goes on falling below 1: the blading still does its Euler work but the shock and
-   rear-stage losses exceed it, the rear stages acting as turbines or throttles (Cumpsty ch. 4,
-   the "turbining" of rear stages at low speed; Walsh & Fletcher ch. 5.2, maps extended below
-   PR 1 for windmilling and starting). The first term of ``chi`` alone stops at PR = 1
-   (``chi -> 0+``), so an engine whose booster must pass more corrected flow than it can at
-   PR >= 1 (ground idle with a heavily degraded booster) had no steady state. The second
-   term continues the choke line: ``softplus(x) = ln(1 + e^x)`` with
-   ``b_d = b_ch - 9 / mu``. Above ``b_d`` it is ``e^(mu (b_d - b))``, negligible where the
-   compressor is not choked, and it overtakes the first term (``e^(-mu (b_ch - b))`` in
-   choke) at ``b_ch - 4.5 / mu``, where the head passes zero (PR = 1); below ``b_d`` the
-   isentropic head falls linearly in ``b`` (``mu`` island heads per map unit) to negative
-   values (``PR < 1``, the efficiency ``Dh_is / Dh`` negative: the compressor dissipates
-   more than its work). The flow is within 5e-5 of the choke flow
-   from ``b_d`` down, so the continuation is the vertical choke end of the speed line
-   extended downward; how ``b`` runs along a vertical line is a choice of parametrization,
-   not a property of the map. Where the map was used before, the second term changes the
-   head by ``softplus(mu (b_d - b)) / chi_1(b)`` of itself: 2.5e-4 at ``b_ch``, 3e-7 at
-   ``b_ch + 2``, below 1e-8 above ``b_ch + 3.5`` (99 % of converged random envelope
-   points; the lowest booster point of 100,000 lies at ``b_ch - 0.81``, changed by 1.7 %).
+   rear-stage losses exceed it, the rear stages acting as turbines or throttles (Cumpsty ch.
+   4, the "turbining" of rear stages at low speed; Walsh & Fletcher on compressor maps
+   extended below PR 1 for windmilling and starting). The first term of ``chi`` alone stops
+   at PR = 1 (``chi -> 0+``), so an engine whose booster must pass more corrected flow than
+   it can at PR >= 1 (ground idle with a heavily degraded booster) had no steady state. The
+   second term continues the choke line: ``softplus(x) = ln(1 + e^x)`` with ``b_d = b_ch - 9
+   / mu``. Above ``b_d`` it is ``e^(mu (b_d - b))``, negligible where the compressor is not
+   choked, and it overtakes the first term (``e^(-mu (b_ch - b))`` in choke) at ``b_ch - 4.5
+   / mu``, where the head passes zero (PR = 1); from there the isentropic head falls on, its
+   slope rising to ``mu`` island heads per map unit well below ``b_d`` (0.5 ``mu`` at
+   ``b_d``, 0.95 ``mu`` at ``b_d - 1``), to negative values (``PR < 1``, the efficiency
+   ``Dh_is / Dh`` negative: the compressor dissipates more than its work). The flow is
+   within 5e-5 of the choke flow from ``b_d`` down, so the continuation is the vertical
+   choke end of the speed line extended downward; how ``b`` runs along a vertical line is a
+   choice of parametrization, not a property of the map. Where the map was used before, the
+   second term changes the head by ``softplus(mu (b_d - b)) / chi_1(b)`` of itself: 2.5e-4
+   at ``b_ch``, 3e-7 at ``b_ch + 2``, below 1e-8 above ``b_ch + 3.5`` (99 % of converged
+   random envelope points; of the 100,000 points that converged before the continuation the
+   lowest booster point lies at ``b_ch - 0.81``, its head changed by 1.7 %).
 3. *Efficiency island.* Profile loss is a bucket in incidence, i.e. in the flow coefficient
    relative to the optimum-incidence one (Cumpsty ch. 5; Dixon & Hall ch. 3): a Gaussian in
    ``phi_w/phi_opt1 - 1``, positive everywhere; the efficiency falls away from the
@@ -206,7 +207,8 @@ class CompressorMap:
         target = self.phi_s1 * n**self.k_s / ((1.0 + flow_mod) * n ** (self.k_ch - self.k_work))
         # a compressor that has lost so much flow capacity that its stall flow coefficient lies
         # beyond choke is stalled along the whole speed line: the smooth floor puts its surge
-        # line deep in choke (PR_surge ~ 1, negative margin) instead of taking log(<= 0)
+        # line deep in choke (b_ch - 2.1 to - 2.3, PR_surge at or below 1, negative margin)
+        # instead of taking log(<= 0)
         g = self.phi_ch1 / target - 1.0
         g = 0.5 * (g + SURGE_FLOOR + ca.sqrt((g - SURGE_FLOOR) ** 2 + SURGE_FLOOR**2))
         return ca.log(g / self.d_choke) / self.lam

@@ -417,14 +417,26 @@ def test_civil_envelope_converges(envelope_run):
     assert (ev.iterations <= 30).all()
 
 
-def _implausible(st):
-    """Reasons why a converged state is not a physical engine state (empty if it is)."""
+def _below_unit_pr(model, x):
+    """Compressors whose map line lies past the head's zero on the choke line, where a
+    pressure ratio below 1 and a negative efficiency are the map's physics (maps.py, 2.)."""
+    d = model.design
+    return {name for j, name in enumerate(("fan", "lpc", "hpc"))
+            if x[j] < getattr(d, name).beta_choke - 4.5 / getattr(d, name).mu}
+
+
+def _implausible(st, choked=frozenset()):
+    """Reasons why a converged state is not a physical engine state (empty if it is).
+    ``choked``: the compressors running choked below PR 1 (:func:`_below_unit_pr`), whose
+    pressure ratio and efficiency are then checked to lie in (0, 1] and below 0."""
     why = []
     for k in ("pr_fan", "pr_lpc", "pr_hpc", "pr_hpt", "pr_lpt"):
-        if not st[k] > 1.0:
+        ok = 0.0 < st[k] <= 1.0 if k[3:] in choked else st[k] > 1.0
+        if not ok:
             why.append(f"{k} = {st[k]:.4g}")
     for k in ("eta_fan", "eta_lpc", "eta_hpc", "eta_hpt", "eta_lpt"):
-        if not 0.0 < st[k] < 1.0:
+        ok = st[k] <= 0.0 if k[4:] in choked else 0.0 < st[k] < 1.0
+        if not ok:
             why.append(f"{k} = {st[k]:.4g}")
     # stall margins are not asked here: a degraded compressor (flow capacity down to -5 %)
     # may be predicted past its surge line, which is a physical prediction (surge), not a
@@ -444,7 +456,8 @@ def test_civil_envelope_states_are_physical(model, envelope_run):
     rng = np.random.default_rng(1)
     for k in rng.choice(len(w), 60, replace=False):
         _, st = stations(model, w[k], th[k], x[k])
-        assert not _implausible(st), (w[k], _implausible(st))
+        why = _implausible(st, _below_unit_pr(model, x[k]))
+        assert not why, (w[k], why)
     # and thrust stays positive, fuel flow positive
     assert (ev.Fn > 0).all() and (ev.Wf > 0).all()
 
@@ -457,7 +470,8 @@ def test_no_unphysical_root_reported_as_converged(model):
     r = model.solve(w, th)
     if r.converged[0]:
         _, st = stations(model, w[0], th[0], r.x[0])
-        assert not _implausible(st), _implausible(st)
+        why = _implausible(st, _below_unit_pr(model, r.x[0]))
+        assert not why, why
 
 
 def test_non_converged_point_is_flagged_and_nan(model):

@@ -46,17 +46,18 @@ def test_every_speed_line_falls_from_surge_to_choke(model, comp):
     cmap = getattr(model.design, comp)
     for n in SPEEDS:
         b, wc, pr, work = _line(cmap, n)
+        # the flow rises toward choke and saturates at the choke flow, on every line
+        wc_choke = cmap.wc_des * n * float(cmap.phi_choke(n))
+        assert np.all(np.diff(wc) > 0.0) and wc_choke * (1.0 - 1e-4) < wc[-1] < wc_choke
         ok = (work > 0.0) & (pr > 0.5)
         keep = np.cumprod(ok).astype(bool)  # the stretch from the surge line down to there
+        windmills = not keep.all() and work[keep.sum()] <= 0.0  # the stretch ends at work 0
         b, wc, pr, work = b[keep], wc[keep], pr[keep], work[keep]
         assert len(b) > 50, (comp, n)
         assert np.all(np.diff(pr) < 0.0), (comp, n)  # pressure ratio falls toward choke
         assert np.all(np.diff(work) < 0.0), (comp, n)  # Euler: specific work falls too
-        assert np.all(np.diff(wc) > 0.0), (comp, n)  # flow rises toward choke ...
         assert pr[0] > 1.0
-        if keep.all():  # ... and saturates at the choke flow, where PR drops to ~1
-            wc_choke = cmap.wc_des * n * float(cmap.phi_choke(n))
-            assert wc_choke * (1.0 - 1e-4) < wc[-1] < wc_choke, (comp, n)
+        if not windmills:  # a line still doing work in deep choke has gone below PR 1
             assert pr[-1] < 1.0, (comp, n)
     # the core compressors, and the fan at and above 90 % speed, reach choke doing work
     for n in SPEEDS:
@@ -82,12 +83,12 @@ def test_choke_line_continues_below_unit_pressure_ratio(model, comp):
         assert np.all(np.diff(head) < 0.0) and head[0] > 0.0 > head[-1], (comp, n)
         assert eta[-1] < 0.0
         wc_choke = cmap.wc_des * n * float(cmap.phi_choke(n))
-        assert abs(float(cmap.flow(n, b[-1])) / wc_choke - 1.0) < 1e-4
+        assert abs(float(cmap.flow(n, b_d)) / wc_choke - 1.0) < 5e-5
         # the logistic choke factor alone, as the map was before the continuation
         island = float(cmap.eta_pk * ca.exp(-cmap.c_phi * (cmap.phi_work(n, b_ch)
                                                              / cmap.phi_opt1 - 1.0) ** 2
                                             - cmap.c_n * (n - cmap.n_pk) ** 2))
-        for db, tol in ((0.0, 2.6e-4), (3.5, 1e-8)):
+        for db, tol in ((0.0, 2.5e-4), (3.5, 1e-8)):
             x = b_ch + db
             first = island * float(cmap.work(n, x)) / (1.0 + np.exp(-cmap.mu * db))
             first *= float(ca.exp(-cmap.c_phi * (cmap.phi_work(n, x) / cmap.phi_opt1 - 1.0)
