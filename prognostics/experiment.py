@@ -310,6 +310,9 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
             else:
                 cached += 1
                 state = "cached"
+            # a run shared by two parts (features' data-driven and hybrid are main's) is
+            # reported under each part that plans it, not under the part that trained it
+            rec["run"] = {**rec["run"], "part": run.part}
             rec["key"] = key
             records.append(rec)
             rmse = rec["metrics"]["samples"]["overall"]["rmse"]
