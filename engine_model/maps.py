@@ -179,6 +179,11 @@ class CompressorMap:
         """Map line ``b_d`` from which the choke line continues below PR = 1."""
         return self.beta_choke - DEEP_CHOKE / self.mu
 
+    @property
+    def beta_unit_pr(self) -> float:
+        """Map line where the continued choke line passes PR = 1 (``b_ch - 4.5 / mu``)."""
+        return self.beta_choke - 0.5 * DEEP_CHOKE / self.mu
+
     def _chi(self, beta):
         """Choke factor of the isentropic head: the shock loss of the logistic first term,
         continued below PR = 1 by ``softplus(mu (b_d - b))`` (module docstring, 2.)."""

@@ -422,7 +422,7 @@ def _below_unit_pr(model, x):
     pressure ratio below 1 and a negative efficiency are the map's physics (maps.py, 2.)."""
     d = model.design
     return {name for j, name in enumerate(("fan", "lpc", "hpc"))
-            if x[j] < getattr(d, name).beta_choke - 4.5 / getattr(d, name).mu}
+            if x[j] < getattr(d, name).beta_unit_pr}
 
 
 def _implausible(st, choked=frozenset()):
