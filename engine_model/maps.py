@@ -88,7 +88,12 @@ A compressor that has lost flow capacity (fouling, erosion: ``flow_mod < 0``) re
 critical incidence earlier along each speed line, at a lower pressure ratio: the surge line
 moves down and flow-capacity loss consumes stall margin, as fouling studies report
 (Saravanamuttoo & Lakshminarasimha, ASME 85-GT-153, 1985; Kurz & Brun, J. Eng. Gas Turbines
-Power 123, 2001). ``phi_s1`` is placed by the design stall margin. The stall margin is taken
+Power 123, 2001). Whether the margin at a working point falls depends on where the
+compressor's flow is set. For a booster behind the HPC it does not at sea level: the
+booster runs down its speed line toward choke. Stage stacking (:mod:`stage_stacking`), in
+which a uniformly blocked stack keeps its surge pressure ratio, gives that sign too, with a
+larger rise than this map's, whose surge line also drops. ``phi_s1`` is placed by the
+design stall margin. The stall margin is taken
 at constant corrected speed, ``SM = 100 (PR_surge / PR - 1)`` [%] (one of the two definitions
 of SAE ARP1420 and Walsh & Fletcher ch. 5; the other is at constant corrected flow).
 
