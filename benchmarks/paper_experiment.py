@@ -14,8 +14,10 @@ Steps, each skipped or resumed when its output is already there:
 4. the tables (Markdown, CSV: one row per training run) and the figures are copied to
    ``benchmarks/results/paper/`` to be committed; the trained models stay in ``out/``.
 
-It takes many hours on two CPU cores (about 55 training runs; a CNN epoch over the
-development set is about a minute of CPU); ``--device cuda`` where a GPU is available.
+It takes about 2.5 hours on two idle CPU cores (59 training runs, most ended early by early
+stopping: FNN 0.5-2 min, CNN 2-8 min each, measured 2026-11-25; a CNN epoch over the
+development set is 13 s wall, ``benchmarks/results/prognostics_speed.md``), longer on a shared
+machine; ``--device cuda`` where a GPU is available.
 Options: ``--seeds``, ``--ablations``, ``--epochs``, ``--device`` are passed to step 3.
 
 Across sessions and machines. A session lasts three hours and may start on a fresh machine,

@@ -90,9 +90,9 @@ moves down and flow-capacity loss consumes stall margin, as fouling studies repo
 (Saravanamuttoo & Lakshminarasimha, ASME 85-GT-153, 1985; Kurz & Brun, J. Eng. Gas Turbines
 Power 123, 2001). Whether the margin at a working point falls depends on where the
 compressor's flow is set. For a booster behind the HPC it does not at sea level: the
-booster runs down its speed line toward choke. Stage stacking (:mod:`stage_stacking`), in
-which a uniformly blocked stack keeps its surge pressure ratio, gives that sign too, with a
-larger rise than this map's, whose surge line also drops. ``phi_s1`` is placed by the
+booster runs down its speed line toward choke, and the core takes more corrected flow from
+it. Stage stacking (:mod:`stage_stacking`), set behind the same exit flow, gives that sign
+too, with a larger rise than this map's, whose surge line also drops. ``phi_s1`` is placed by the
 design stall margin. The stall margin is taken
 at constant corrected speed, ``SM = 100 (PR_surge / PR - 1)`` [%] (one of the two definitions
 of SAE ARP1420 and Walsh & Fletcher ch. 5; the other is at constant corrected flow).

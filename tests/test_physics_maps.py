@@ -271,9 +271,10 @@ def test_flow_capacity_loss_consumes_stall_margin(model):
     """-2 % flow capacity of a compressor lowers that compressor's stall margin (at constant
     corrected speed) at SLS take-off, climb and cruise - except the booster at sea level.
     There the HPC behind it sets its flow: a booster that loses capacity runs down its speed
-    line toward choke and its constant-speed margin rises (+0.07 points at SLS TRA 100). An
-    independent stage-stacking analysis gives the same sign, +0.3 to +0.9 points, in all 108
-    variants (engine_model.stage_stacking, tests/test_stage_stacking.py,
+    line toward choke, the core takes 1.22 % more corrected flow from it, and its
+    constant-speed margin rises (+0.07 points at SLS TRA 100). Stage stacking behind that
+    exit flow gives the same sign, +0.54 to +1.32 points, in all 72 variants
+    (engine_model.stage_stacking, tests/test_stage_stacking.py,
     benchmarks/results/booster_stage_stacking.md). What consumes the booster's margin at sea
     level is the rematch: an HPC that loses flow capacity raises the booster's working line,
     asserted here at all three points."""

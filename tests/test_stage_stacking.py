@@ -68,3 +68,51 @@ def test_capacity_loss_behind_a_fixed_throttle_raises_the_margin(stack):
         assert w == pytest.approx(98.0, rel=1e-8)
         for n in (1.0, 0.8):
             assert stack.stall_margin(n, f) > stack.stall_margin(n) + 0.2
+
+
+def test_static_density_is_isentropic_from_the_total_state(stack):
+    T0, P0, cx = 330.0, 1.6e5, 170.0
+    c2 = cx**2 * (1.0 + stack.tan_a1**2)
+    T = T0 - c2 / (2.0 * 1004.5)
+    rho0 = P0 / (1004.5 * 0.4 / 1.4 * T0)
+    assert stack.static_density(T0, P0, cx) == pytest.approx(rho0 * (T / T0) ** 2.5, rel=1e-12)
+
+
+def test_working_point_meets_the_throttle(stack):
+    for n, target in ((1.0, stack.exit_flow_des), (0.9, 1.01 * stack.exit_flow_des)):
+        w, pr = stack.working_point(n, exit_flow=target)
+        assert stack.exit_flow(w, n) == pytest.approx(target, rel=1e-9)
+        assert stack.pressure_ratio(w, n) == pytest.approx(pr, rel=1e-12)
+
+
+def test_margin_unchanged_when_the_throttle_follows_the_capacity(stack):
+    """The mechanism: under uniform pure blockage f the speed line is the clean one scaled
+    by (1 + f) in flow, so behind an exit flow scaled by the same (1 + f) the working point,
+    the surge point and the margin are the clean ones; the margin rises only because the
+    core takes more than that."""
+    f = np.full(3, -0.02)
+    for n in (1.0, 0.8):
+        sm = stack.stall_margin(n, f, 0.98 * stack.exit_flow_des)
+        assert sm == pytest.approx(stack.stall_margin(n), abs=1e-8)
+
+
+def test_fouling_loss_lowers_the_surge_line(stack):
+    """With k > 0 the deposit also lowers the stages' work and efficiency: the surge pressure
+    ratio at constant speed falls, as fouling studies report, and the margin gain behind a
+    fixed throttle shrinks."""
+    lossy = StageStack(n_stages=3, pr_des=1.31, w_des=100.0, T_in=320.0, P_in=1.5e5,
+                       fouling_loss=0.5)
+    f_pure = stack.blockage_for_capacity(np.ones(3))
+    f_lossy = lossy.blockage_for_capacity(np.ones(3))
+    assert lossy.surge_point(1.0, f_lossy)[1] < lossy.surge_point(1.0)[1] - 1e-3
+    gain_pure = stack.stall_margin(1.0, f_pure) - stack.stall_margin(1.0)
+    gain_lossy = lossy.stall_margin(1.0, f_lossy) - lossy.stall_margin(1.0)
+    assert 0.0 < gain_lossy < gain_pure
+
+
+def test_choked_stack_and_unreachable_capacity_are_errors(stack):
+    assert stack.run(3.0 * stack.w_des, 1.0) is None  # above the first stage's choking flux
+    with pytest.raises(ValueError, match="choked"):
+        stack.pressure_ratio(3.0 * stack.w_des, 1.0)
+    with pytest.raises(ValueError, match="flow capacity"):
+        stack.blockage_for_capacity(np.ones(3), -0.5)
