@@ -7,8 +7,13 @@ Parts (``parts`` / ``--ablations`` select them; ``main`` and the baseline always
                  the ensemble of their seeds (mean and spread) is reported beside them.
 ``small``        ablation I: CNN x data-driven and hybrid trained on ``small_units`` only (the
                  paper's 16, 18, 20: one failure mode, half the units; paper Table 7).
-``features``     ablation III: CNN on data-driven, denoised, virtual, hybrid and truth-theta
-                 (:mod:`.features`; paper Table 8, which uses the true θ).
+``features``     ablation III (paper Table 8): CNN on data-driven, then denoised, virtual and
+                 hybrid under *perfect calibration*, as the paper defines it: ``x̂_s``,
+                 ``x̂_v`` and ``θ̂`` replaced by their ground truth, the engine model's outputs
+                 at the true θ of every sample and the true θ itself
+                 (:func:`perfect_calibration`). Beside them the same sets with the
+                 calibrated ``θ̂`` and ``truth-theta`` (true θ, ``x̂`` from ``θ̂``;
+                 :mod:`.features`).
 ``calibration``  ablation IV: CNN hybrid with θ̂ degraded (paper Sec. 5.2.3, Table 9):
                  white noise at SNR 20 and 15 dB, ``θ̂ + n``, ``n ~ N(0, σ²)`` with
                  ``σ² = P / 10^(SNR/10)`` and ``P = mean(θ̂²)`` of the column over the table; and
@@ -54,7 +59,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from engine_model.channels import THETA_NAMES
+from engine_model.channels import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
 from engine_model.datasets import output_lock
 from engine_model.datasets.atomic import remove_stale_temporaries
 from engine_model.validation import InputError
@@ -68,6 +73,8 @@ from .training import TrainConfig, fit
 PARTS = ("main", "small", "features", "calibration", "conformal")
 MAIN_SETS = ("data-driven", "hybrid")
 FEATURE_SETS = ("data-driven", "denoised", "virtual", "hybrid", "truth-theta")
+PERFECT = "perfect"  # ablation III's perfect calibration (perfect_calibration)
+PERFECT_SETS = ("denoised", "virtual", "hybrid")
 PERTURBATIONS = {"snr20": ("noise", 20.0), "snr15": ("noise", 15.0),
                  "bias+0.5": ("bias", 0.5), "bias-0.5": ("bias", -0.5)}
 CACHE_VERSION = 1
@@ -128,6 +135,8 @@ def plan(cfg: ExperimentConfig, dev_units: Sequence[int]) -> list[Run]:
                  for s in MAIN_SETS for seed in abl]
     if "features" in cfg.parts:
         runs += [Run("features", "cnn", s, seed) for s in FEATURE_SETS for seed in abl]
+        runs += [Run("features", "cnn", s, seed, perturbation=PERFECT) for s in PERFECT_SETS
+                 for seed in abl]
     if "calibration" in cfg.parts:
         runs += [Run("calibration", "cnn", "hybrid", seed, perturbation=p)
                  for p in PERTURBATIONS for seed in abl]
@@ -162,6 +171,43 @@ def perturb_theta(df: pd.DataFrame, name: str, seed: int) -> pd.DataFrame:
         t0 = theta0.reindex(out["unit"]).to_numpy()
         v = out[cols].to_numpy(np.float64)
         out[cols] = v + value * (t0 - v)
+    return out
+
+
+def perfect_calibration(df: pd.DataFrame,
+                        outputs_fn: Callable[[np.ndarray, np.ndarray], pd.DataFrame] | None
+                        = None) -> pd.DataFrame:
+    """A copy of ``df`` as a perfect calibration would have written it (the paper's ablation
+    III: "x̂_s, x̂_v, θ are ground-truth values"). Every ``<c>_hat`` of an x_s or x_v channel
+    becomes the engine model's output at the sample's operating point and *true* θ (all of
+    ``THETA_NAMES``), and every ``<q>_hat`` becomes the true ``q``. ``outputs_fn(w, theta)``
+    returns those outputs (a DataFrame with the channel names and ``converged``). The default
+    is the default engine model (:func:`engine_model.shared_model.default_model`), the model
+    the simulator flies and ``hyprog calibrate`` estimates with when no effect is declared.
+    On a simulated fleet without undeclared effects, ``x̂_v`` is then the recorded ``x_v``
+    and ``x̂_s`` the noise-free ``x_s``."""
+    missing = [q for q in THETA_NAMES if q not in df.columns]
+    if missing:
+        raise InputError(f"ablation III (perfect calibration): the table has no true theta "
+                         f"column(s) {', '.join(missing)}")
+    if outputs_fn is None:
+        from engine_model.shared_model import default_model
+
+        outputs_fn = default_model().evaluate
+    w = df[list(W_NAMES)].to_numpy(np.float64)
+    theta = df[list(THETA_NAMES)].to_numpy(np.float64)
+    ev = outputs_fn(w, theta)
+    bad = int((~np.asarray(ev["converged"], bool)).sum())
+    if bad:
+        raise InputError(f"ablation III (perfect calibration): the engine model does not "
+                         f"converge at {bad} of {len(df)} samples with their true theta")
+    out = df.copy()
+    for c in (*XS_NAMES, *XV_NAMES):
+        if c + "_hat" in out.columns:
+            out[c + "_hat"] = ev[c].to_numpy().astype(out[c + "_hat"].dtype)
+    for q in THETA_NAMES:
+        if q + "_hat" in out.columns:
+            out[q + "_hat"] = out[q].astype(out[q + "_hat"].dtype)
     return out
 
 
@@ -205,9 +251,14 @@ def run_key(run: Run, tc: TrainConfig, fingerprint: str) -> str:
 
 
 def _execute(run: Run, tc: TrainConfig, df: pd.DataFrame, meta: dict, test: list[int],
-             run_dir: Path) -> dict:
+             run_dir: Path, perfect: Callable[[], pd.DataFrame]) -> dict:
     t0 = time.perf_counter()
-    data = perturb_theta(df, run.perturbation, run.seed) if run.perturbation else df
+    if run.perturbation == PERFECT:
+        data = perfect()
+    elif run.perturbation:
+        data = perturb_theta(df, run.perturbation, run.seed)
+    else:
+        data = df
     model = fit(data, meta, tc, quiet=True)
     metrics, pred = model.evaluate(data, test, tc.device)
     seconds = time.perf_counter() - t0
@@ -273,12 +324,15 @@ def _baseline(df, meta, dev, test, out: Path, fingerprint: str, hi_fn, log) -> d
 def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
                    config: ExperimentConfig = ExperimentConfig(),
                    hi_fn: Callable[[np.ndarray], np.ndarray] | None = None,
-                   log: Callable[[str], None] | None = None, source: str = "table") -> dict:
+                   log: Callable[[str], None] | None = None, source: str = "table",
+                   outputs_fn: Callable[[np.ndarray, np.ndarray], pd.DataFrame] | None = None
+                   ) -> dict:
     """Run (or resume) every selected run, then write the report (:mod:`.report`).
 
     ``hi_fn`` is the health index for the baseline (default: the engine model's
-    ``HealthIndex``, built only when the baseline is not cached). Returns ``{"trained",
-    "cached", "runs", "report"}``.
+    ``HealthIndex``, built only when the baseline is not cached); ``outputs_fn`` the model
+    of :func:`perfect_calibration` (default: the engine model, evaluated only when a perfect-
+    calibration run is not cached). Returns ``{"trained", "cached", "runs", "report"}``.
     """
     from .report import write_report
 
@@ -295,6 +349,14 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
         development_and_test_units(present, meta, cfg.small_units, test, source)
     fingerprint = data_fingerprint(df, meta)
     runs = plan(cfg, dev)
+    perfect_table: list[pd.DataFrame] = []
+
+    def perfect() -> pd.DataFrame:  # computed once, when a run first needs it
+        if not perfect_table:
+            log("ablation III: the engine model at the true theta of every sample")
+            perfect_table.append(perfect_calibration(df, outputs_fn))
+        return perfect_table[0]
+
     records, trained, cached = [], 0, 0
     with output_lock(out):  # one writer per OUT (module docstring, "Cache and resume")
         remove_stale_temporaries(out)  # what a killed run was writing
@@ -304,7 +366,7 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
             run_dir = out / "runs" / key
             rec = load_result(run_dir)
             if rec is None:
-                rec = _execute(run, tc, df, meta, test, run_dir)
+                rec = _execute(run, tc, df, meta, test, run_dir, perfect)
                 trained += 1
                 state = "trained"
             else:

@@ -130,23 +130,32 @@ def test_experiment_paper_runs_and_resumes_from_its_cache(runner, features_parqu
 
 
 def test_experiment_reports_a_shared_run_under_each_part(runner, features_parquet, tmp_path):
-    """Ablation III's data-driven and hybrid runs are main's CNN runs, trained once and
-    listed under both parts: the main table averages main's runs only."""
+    """Ablation III's data-driven and calibrated hybrid runs are main's CNN runs, trained once
+    and listed under both parts: the main table averages main's runs only. Its perfect-
+    calibration runs (denoised, virtual, hybrid on x̂ and θ at their true values, the engine
+    model evaluated at every sample's true theta) are runs of their own."""
     out = tmp_path / "exp"
     r = json.loads(ok(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
                           out, "--seeds", "1", "--epochs", "1", "--ablations", "features",
                           "--device", "cpu", "--json")).stdout)
-    # main 2 models x 2 sets; features 5 sets, of which data-driven and hybrid are main's
-    assert r["runs"] == 9 and r["trained"] == 7 and r["cached"] == 2
-    rows = pd.read_csv(out / "runs.csv")
-    assert rows.part.value_counts().to_dict() == {"main": 4, "features": 5, "baseline": 1}
-    cnn = rows[(rows.model == "cnn") & rows.inputs.isin(["data-driven", "hybrid"])]
+    # main 2 models x 2 sets; features 5 calibrated sets (data-driven and hybrid are main's)
+    # and 3 perfect-calibration sets
+    assert r["runs"] == 12 and r["trained"] == 10 and r["cached"] == 2
+    rows = pd.read_csv(out / "runs.csv", keep_default_na=False)
+    assert rows.part.value_counts().to_dict() == {"main": 4, "features": 8, "baseline": 1}
+    cnn = rows[(rows.model == "cnn") & rows.inputs.isin(["data-driven", "hybrid"])
+               & (rows.perturbation == "")]
     assert cnn.groupby("inputs").key.nunique().to_dict() == {"data-driven": 1, "hybrid": 1}
     assert cnn.groupby("inputs").part.apply(sorted).to_dict() == {
         "data-driven": ["features", "main"], "hybrid": ["features", "main"]}
+    perfect = rows[rows.perturbation == "perfect"]
+    assert sorted(perfect.inputs) == ["denoised", "hybrid", "virtual"]
+    assert set(perfect.part) == {"features"} and perfect.key.nunique() == 3
     md = (out / "tables.md").read_text()
     iii = md[md.index("Ablation III"):md.index("The paper's claims")]
-    assert "| data-driven |" in iii and "| hybrid |" in iii
+    assert "| data-driven [w, x_s] |" in iii and "| hybrid, calibrated θ̂ |" in iii
+    assert "| hybrid [w, x_s, x̂_s, x̂_v, θ], perfect calibration |" in iii
+    assert "perfect calibration does at least as well as θ̂" in md
 
 
 # ---------------------------------------------------------------------------------------------

@@ -333,3 +333,29 @@ def test_prediction_progress_counts_every_window_and_changes_nothing():
     assert sum(seen) == len(win) and max(seen) == 16
     plain = predict_windows(net, win, torch.device("cpu"), batch=16)
     np.testing.assert_array_equal(with_bar, plain)
+
+
+def test_max_rul_caps_the_training_targets(make_features):
+    """``max_rul`` (``--max-rul``): the piecewise-linear target min(RUL, cap) of every window
+    in every role; without it the targets are the table's RUL."""
+    from prognostics.splits import TRAIN
+    from prognostics.training import prepare
+
+    df, meta = make_features()
+    capped = prepare(df, meta, TrainConfig(model="fnn", max_rul=15.0, **TINY))
+    free = prepare(df, meta, TrainConfig(model="fnn", **TINY))
+    for role, w in capped.windows.items():
+        y, y0 = w.target.numpy(), free.windows[role].target.numpy()
+        np.testing.assert_array_equal(y, np.minimum(y0, 15.0))
+    assert free.windows[TRAIN].target.numpy().max() > 15.0  # the cap is reached
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a CPU machine")
+def test_cuda_requested_without_a_gpu_is_a_clear_error():
+    from prognostics.training import resolve_device
+
+    with pytest.raises(InputError, match="no CUDA device available"):
+        resolve_device("cuda")
+    assert resolve_device("auto").type == "cpu"
+    with pytest.raises(InputError, match="auto, cpu or cuda"):
+        resolve_device("gpu")
