@@ -34,8 +34,9 @@ def train(
     epochs: Annotated[int | None, typer.Option(
         "--epochs", help="Maximum epochs (default: 60 FNN, 30 CNN).")] = None,
     val_units: Annotated[str | None, typer.Option(
-        "--val-units", help="Validate on these whole units instead of 10 % of the flights "
-        "(use it for C-MAPSS tables, which have one sample per cycle).")
+        "--val-units", help="Validate on these whole units instead of 10 % of the flights, "
+        "or 'seed': 10 % of the training units drawn by the seed (use it for C-MAPSS tables, "
+        "which have one sample per cycle).")
     ] = None,
     conformal_units: Annotated[str | None, typer.Option(
         "--conformal-units", help="Development units held out to calibrate a conformal "
@@ -59,11 +60,12 @@ def train(
         if ensemble < 1:
             raise CliError(f"--ensemble {ensemble}: expected >= 1")
         check_model_target(out)  # before hours of training, not after
-        vu = parse_units(val_units, "--val-units")
+        by_seed = val_units is not None and val_units.strip().lower() == "seed"
+        vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
         cfg = TrainConfig(model=model, inputs=inputs, window=window, stride=stride,
                           max_rul=max_rul, seed=seed, epochs=epochs,
-                          validation="units" if vu else "flights",
+                          validation="units" if vu or by_seed else "flights",
                           val_units=tuple(vu) if vu else None,
                           units=tuple(parse_units(units) or []) or None,
                           conformal_units=tuple(cu), alpha=alpha, device=device)

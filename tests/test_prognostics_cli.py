@@ -304,6 +304,11 @@ def test_cmapss_files_import_train_and_evaluate_unchanged(runner, tmp_path):
                "--val-units", "4", *FAST, "--json", "--out", tmp_path / "m"))
     cols = json.loads(r.stdout)["columns"]
     assert cols[-2:] == ["phi", "BPR"] and "Ps30" in cols and "P30" in cols
+    # validation units drawn by the seed (10 % of four training units: one)
+    ok(run(runner, "train", data, "--inputs", "data-driven", "--window", "5",
+           "--val-units", "seed", *FAST, "--out", tmp_path / "m-seed"))
+    cfg = json.loads((tmp_path / "m-seed" / "model.json").read_text())["config"]
+    assert cfg["validation"] == "units" and cfg["val_units"] is None
     m = json.loads(ok(run(runner, "evaluate", tmp_path / "m", data, "--json")).stdout)
     last = m["last"]["units"]
     assert sorted(e["RUL"] for e in last.values()) == sorted(
