@@ -14,7 +14,7 @@ Steps, each skipped or resumed when its output is already there:
 4. the tables (Markdown, CSV: one row per training run) and the figures are copied to
    ``benchmarks/results/paper/`` to be committed; the trained models stay in ``out/``.
 
-It takes about 2.5 hours on two idle CPU cores (59 training runs, most ended early by early
+It takes about 3 hours on two idle CPU cores (68 training runs, most ended early by early
 stopping: FNN 0.5-2 min, CNN 2-8 min each, measured 2026-11-25; a CNN epoch over the
 development set is 13 s wall, ``benchmarks/results/prognostics_speed.md``), longer on a shared
 machine; ``--device cuda`` where a GPU is available.
