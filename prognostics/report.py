@@ -27,6 +27,7 @@ import pandas as pd
 
 from engine_model.channels import THETA_NAMES
 
+from .experiment import PERFECT
 from .metrics import evaluate_predictions, per_cycle
 from .outputs import write_table, write_text
 
@@ -222,9 +223,9 @@ def _simple_table(agg: pd.DataFrame, part: str, key: str, order, base: dict | No
 
 FEATURE_ROWS = (  # ablation III: (inputs, perturbation, label)
     ("data-driven", "", "data-driven [w, x_s]"),
-    ("denoised", "perfect", "denoised [w, x_s, x̂_s], perfect calibration"),
-    ("virtual", "perfect", "virtual [w, x_s, x̂_s, x̂_v], perfect calibration"),
-    ("hybrid", "perfect", "hybrid [w, x_s, x̂_s, x̂_v, θ], perfect calibration"),
+    ("denoised", PERFECT, "denoised [w, x_s, x̂_s], perfect calibration"),
+    ("virtual", PERFECT, "virtual [w, x_s, x̂_s, x̂_v], perfect calibration"),
+    ("hybrid", PERFECT, "hybrid [w, x_s, x̂_s, x̂_v, θ], perfect calibration"),
     ("denoised", "", "denoised, calibrated θ̂"),
     ("virtual", "", "virtual, calibrated θ̂"),
     ("hybrid", "", "hybrid, calibrated θ̂"),
@@ -309,7 +310,7 @@ def _claims(agg: pd.DataFrame) -> list[str]:
             ok, f"hybrid {_rel(sh, fh)}, data-driven {_rel(sd, fd)}; small set hybrid "
             f"{sh:.3g} vs data-driven {sd:.3g}")
     seq = [("data-driven", mean(part="features", inputs="data-driven", perturbation=""))] + \
-        [(s, mean(part="features", inputs=s, perturbation="perfect"))
+        [(s, mean(part="features", inputs=s, perturbation=PERFECT))
          for s in ("denoised", "virtual", "hybrid")]
     if all(v is not None for _, v in seq):
         vals = [v for _, v in seq]
