@@ -207,18 +207,25 @@ def _horizon_table(records: list[dict], base: dict | None) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=head)
 
 
-def _simple_table(agg: pd.DataFrame, part: str, key: str, order, base: dict | None,
-                  extra: list | None = None) -> pd.DataFrame:
+def _rows_table(agg: pd.DataFrame, picks, base: dict | None, first: str,
+                extra: list | None = None) -> pd.DataFrame:
+    """One row per ``(label, filter)`` of ``picks`` that ``agg`` has (RMSE, s, last-cycle
+    RMSE), after the ``extra`` rows, then the physics baseline."""
     rows = [r for r in (extra or [])]
-    for v in order:
-        a = _pick(agg, part=part, **{key: v})
+    for label, where in picks:
+        a = _pick(agg, **where)
         if a is not None:
-            rows.append([v, int(a["runs"]), *_row(a, ("rmse", "score", "rmse_last"))])
+            rows.append([label, int(a["runs"]), *_row(a, ("rmse", "score", "rmse_last"))])
     b = _base_cells(base)
     if b:
         rows.append(["physics baseline", 1, f"{b['rmse']:.3g}", f"{b['score']:.3g}",
                      f"{b['rmse_last']:.3g}"])
-    return pd.DataFrame(rows, columns=[key, "runs", "RMSE", "s", "RMSE (last cycle)"])
+    return pd.DataFrame(rows, columns=[first, "runs", "RMSE", "s", "RMSE (last cycle)"])
+
+
+def _simple_table(agg: pd.DataFrame, part: str, key: str, order, base: dict | None,
+                  extra: list | None = None) -> pd.DataFrame:
+    return _rows_table(agg, [(v, {"part": part, key: v}) for v in order], base, key, extra)
 
 
 FEATURE_ROWS = (  # ablation III: (inputs, perturbation, label)
@@ -234,17 +241,9 @@ FEATURE_ROWS = (  # ablation III: (inputs, perturbation, label)
 
 
 def _features_table(agg: pd.DataFrame, base: dict | None) -> pd.DataFrame:
-    rows = []
-    for inputs, pert, label in FEATURE_ROWS:
-        a = _pick(agg, part="features", inputs=inputs, perturbation=pert)
-        if a is not None:
-            rows.append([label, int(a["runs"]), *_row(a, ("rmse", "score", "rmse_last"))])
-    b = _base_cells(base)
-    if b:
-        rows.append(["physics baseline", 1, f"{b['rmse']:.3g}", f"{b['score']:.3g}",
-                     f"{b['rmse_last']:.3g}"])
-    return pd.DataFrame(rows, columns=["inputs (CNN)", "runs", "RMSE", "s",
-                                       "RMSE (last cycle)"])
+    picks = [(label, {"part": "features", "inputs": inputs, "perturbation": pert})
+             for inputs, pert, label in FEATURE_ROWS]
+    return _rows_table(agg, picks, base, "inputs (CNN)")
 
 
 def _small_table(agg: pd.DataFrame, base: dict | None) -> pd.DataFrame:
