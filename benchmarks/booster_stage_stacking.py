@@ -8,7 +8,7 @@ Run by hand: ``python benchmarks/booster_stage_stacking.py``. It prints two tabl
    for the new engine, with LPC flow capacity -2 %, and with HPC flow capacity -2 %. The
    points are SLS at TRA 100, 80 and 60, climb (20 kft, Mach 0.7, TRA 90) and cruise
    (35 kft, Mach 0.8, TRA 70).
-2. **Stage stacking** (``engine_model.stage_stacking``). A booster of 3 or 4 repeating
+2. **Stage stacking** (``engine_model.physics.stage_stacking``). A booster of 3 or 4 repeating
    stages at the model's design pressure ratio, inlet temperature and pressure, and peak
    efficiency. It runs behind a fixed downstream throttle (the HPC's corrected flow), at
    relative speeds 1.0, 0.9 and 0.8. Every stage is given a blockage, scaled so that the flow
@@ -30,9 +30,9 @@ from scipy.optimize import brentq
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from engine_model import THETA_NAMES  # noqa: E402
-from engine_model.atmosphere import t2_from_flight  # noqa: E402
-from engine_model.shared_model import default_model  # noqa: E402
-from engine_model.stage_stacking import StageStack  # noqa: E402
+from engine_model.physics.atmosphere import t2_from_flight  # noqa: E402
+from engine_model.physics.stage_stacking import StageStack  # noqa: E402
+from engine_model.runtime.shared_model import default_model  # noqa: E402
 
 POINTS = {"SLS TRA 100": (0.0, 0.0, 100.0), "SLS TRA 80": (0.0, 0.0, 80.0),
           "SLS TRA 60": (0.0, 0.0, 60.0), "climb": (20000.0, 0.7, 90.0),

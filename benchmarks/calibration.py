@@ -5,9 +5,9 @@ the Cramér-Rao bound (:mod:`calibration.compare`).
     python benchmarks/calibration.py --methods ukf,mhe --units 2,14 --jobs 2
     python benchmarks/calibration.py --data fleet/ --params all  # a fleet already simulated
 
-The fleet is simulated with :func:`engine_model.fleet.simulate` (seed 0) unless ``--data`` is
-given; its true theta columns are the reference and are never read by the estimators. Units
-run in ``--jobs`` worker processes. Prints the machine, one table per method (RMSE, bias,
+The fleet is simulated with :func:`engine_model.simulator.fleet.simulate` (seed 0) unless
+``--data`` is given; its true theta columns are the reference and are never read by the estimators.
+Units run in ``--jobs`` worker processes. Prints the machine, one table per method (RMSE, bias,
 consistency, mean reported std, CRB, RMSE / CRB, residual whiteness, wall time, samples/s) and
 the RMSE per unit.
 """
@@ -57,7 +57,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         data = a.data
         if data is None:
-            from engine_model import fleet
+            from engine_model.simulator import fleet
 
             t0 = time.perf_counter()
             data = Path(tmp) / "fleet"

@@ -54,8 +54,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from calibration import CalibrationSetup  # noqa: E402
 from calibration.discrepancy import DiscoverOptions, discover  # noqa: E402
 from calibration.discrepancy.synthetic import unit_with_effect  # noqa: E402
-from engine_model import fleet  # noqa: E402
-from engine_model.shared_model import default_model  # noqa: E402
+from engine_model.runtime.shared_model import default_model  # noqa: E402
+from engine_model.simulator import fleet  # noqa: E402
 
 # effect -> (spec at size 1, the parameter that scales)
 EFFECTS = {
@@ -122,7 +122,8 @@ def cmapss(base, path, method, candidates=None):
     theta), the channels C-MAPSS shows. Each row is a mean of many readings, but of many units
     too: the documented sensor noise (half the unit-to-unit scatter) is kept as each row's
     noise, i.e. each mean is weighted like one reading (conservative). ``Ps30`` is left out:
-    in the C-MAPSS files it is not a static pressure below P30 (:mod:`engine_model.reference`)."""
+    in the C-MAPSS files it is not a static pressure below P30
+    (:mod:`engine_model.analysis.reference`)."""
     import pandas as pd
 
     df = pd.read_csv(path)
@@ -133,7 +134,7 @@ def cmapss(base, path, method, candidates=None):
     d = discover([df], CalibrationSetup(sensors=sensors),
                  DiscoverOptions(method=method, drift=1e-3, candidates=candidates),
                  base_model=base)
-    from calibration.discrepancy.report import markdown
+    from calibration.discrepancy.discovery_report import markdown
 
     print(markdown(d))
     name = "discrepancy_cmapss" + ("_candidates" if candidates else "") + ".md"

@@ -10,7 +10,7 @@ parameter at 0. The residual is then the measurement noise alone, and every cand
 ``s = J_phi^T e`` is exactly Gaussian with covariance ``J_phi^T J_phi`` if the noise model
 ``R`` is right; ``T = s^T (J^T J)^-1 s`` is chi-square with the candidate's number of
 parameters (chi-bar-squared for a one-sided candidate: the screen's own statistic and
-p-value, :mod:`calibration.discrepancy.score_test`). This
+p-value, :mod:`calibration.discrepancy.score_statistics`). This
 separates two causes of false discoveries: a statistic that is not calibrated (tail rates
 above nominal) and the estimation of theta (false discoveries where the statistic at the
 truth stays below the threshold). Printed: the share of tests below each nominal level
@@ -35,10 +35,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from calibration.discrepancy.candidates import CandidateModel, build_candidates  # noqa: E402
 from calibration.discrepancy.max_stat import screen  # noqa: E402
 from calibration.discrepancy.null_fit import Problem, unit_data  # noqa: E402
-from calibration.discrepancy.score_test import Scores  # noqa: E402
-from calibration.setup import CalibrationSetup  # noqa: E402
-from engine_model import fleet  # noqa: E402
-from engine_model.shared_model import default_model  # noqa: E402
+from calibration.discrepancy.score_statistics import Scores  # noqa: E402
+from calibration.estimation_setup import CalibrationSetup  # noqa: E402
+from engine_model.runtime.shared_model import default_model  # noqa: E402
+from engine_model.simulator import fleet  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 LEVELS = (1e-2, 1e-3, 1e-4)

@@ -9,7 +9,7 @@ compared while other work runs, e.g. before and after a refactor::
     PYTHONPATH=/tmp/old python benchmarks/engine_cpu_time.py     # the old tree
     python benchmarks/engine_cpu_time.py                          # this tree
 
-Points: ``engine_model.sampling.random_envelope`` (seed 0), as in engine_throughput.py.
+Points: ``engine_model.analysis.sampling.random_envelope`` (seed 0), as in engine_throughput.py.
 Prints the tree it imported, and the best and median of ``--repeat`` timings.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 
 import engine_model
 from engine_model import EngineModel
-from engine_model.sampling import random_envelope
+from engine_model.analysis.sampling import random_envelope
 
 
 def main():

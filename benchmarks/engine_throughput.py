@@ -2,7 +2,7 @@
 
 Run by hand: ``python benchmarks/engine_throughput.py [--n 100000]``. Prints a table; the
 README quotes it with the machine it ran on. Points: random civil envelope
-(engine_model.sampling), theta uniform in [-0.05, 0].
+(engine_model.analysis.sampling), theta uniform in [-0.05, 0].
 """
 
 import argparse
@@ -16,7 +16,7 @@ import numpy as np
 # this checkout, not whichever tree is installed
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from engine_model import EngineModel  # noqa: E402
-from engine_model.sampling import random_envelope  # noqa: E402
+from engine_model.analysis.sampling import random_envelope  # noqa: E402
 
 
 def _time(fn, repeat=1):

@@ -21,7 +21,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 
 def _one(rate: float, seed: int) -> dict:
-    from engine_model import EngineModel, fleet
+    from engine_model import EngineModel
+    from engine_model.simulator import fleet
 
     EngineModel()  # load (or build) the compiled model outside the timed part
     with tempfile.TemporaryDirectory() as tmp:

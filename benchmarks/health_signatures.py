@@ -5,7 +5,7 @@ Run by hand: ``python benchmarks/health_signatures.py``. Prints a markdown table
 of T24, T30, T48, T50 [degR], P30 [psia], Nc [rpm] and Wf [pph] when one health parameter
 (``engine_model.THETA_NAMES``) is lowered by 0.02 at fixed TRA, and marks with ``!`` a change
 whose sign differs between the three points while exceeding the channel's noise sigma
-(``engine_model.sensor_noise``) at both. ``tests/test_physics_maps.py`` asserts the same
+(``engine_model.simulator.sensor_noise``) at both. ``tests/test_physics_maps.py`` asserts the same
 table's sign consistency.
 """
 
@@ -15,8 +15,8 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from engine_model.shared_model import default_model  # noqa: E402
-from engine_model.signatures import SIGNATURE_CHANNELS, SIGNATURE_POINTS, signature_table  # noqa: E402
+from engine_model.analysis.signatures import SIGNATURE_CHANNELS, SIGNATURE_POINTS, signature_table  # noqa: E402
+from engine_model.runtime.shared_model import default_model  # noqa: E402
 
 
 def main():

@@ -19,9 +19,9 @@ import casadi as ca
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from engine_model.atmosphere import t2_from_flight  # noqa: E402
-from engine_model.design import design_engine  # noqa: E402
-from engine_model.turbofan import N_UNKNOWNS, X_DESIGN, cycle  # noqa: E402
+from engine_model.physics.atmosphere import t2_from_flight  # noqa: E402
+from engine_model.physics.design import design_engine  # noqa: E402
+from engine_model.physics.turbofan import N_UNKNOWNS, X_DESIGN, cycle  # noqa: E402
 from engine_model.units import R_PER_K, T_STD_R  # noqa: E402
 
 CRUISE = (35000.0, 0.8, 70.0)

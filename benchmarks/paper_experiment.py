@@ -28,7 +28,7 @@ run's record (``result.json``) and test predictions (``predictions.parquet``, pl
 runs there at any moment (the experiment may be running: a run's ``result.json`` is written
 last and atomically), and every start first copies the committed runs back into
 ``out/paper/runs/``. A run's key hashes its configuration *and* every value of the feature
-table (``prognostics.experiment``), so a committed run is reused only when steps 1-2 gave
+table (``workflows.paper.experiment``), so a committed run is reused only when steps 1-2 gave
 the same table bit for bit (same code, seed and libraries); otherwise it is trained again.
 """
 
@@ -44,8 +44,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout, not whichever tree is installed
-from engine_model.datasets import output_lock  # noqa: E402
-from prognostics.experiment import check_experiment_out  # noqa: E402
+from engine_model.runtime import output_lock  # noqa: E402
+from workflows.paper.experiment import check_experiment_out  # noqa: E402
 
 OUT = ROOT / "out"
 RESULTS = ROOT / "benchmarks" / "results" / "paper"

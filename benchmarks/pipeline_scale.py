@@ -11,12 +11,13 @@ samples at 0.1 Hz each, so 100 units are about 8.3 M rows), renumbered 1..N, the
 test units. Stages, each in a fresh ``python`` process so that its peak resident set size
 (``ru_maxrss`` of the child) is its own, each calling what ``hyprog pipeline`` calls:
 
-- ``simulate``: :func:`engine_model.fleet.simulate` into ``WORK/fleet``: units written one at a
-  time (and kept across an interruption: the rerun simulates only the missing ones);
-- ``calibrate``: :func:`calibration.fleet.calibrate_fleet` (UKF) into ``WORK/features``: the
-  client reads one unit at a time, a lockstep task holds at most
-  ``calibration.fleet.LOCKSTEP_MAX_ROWS`` samples, every unit is written when done (a rerun
-  skips the units written);
+- ``simulate``: :func:`engine_model.simulator.fleet.simulate` into ``WORK/fleet``: units
+  written one at a time (and kept across an interruption: the rerun simulates only the
+  missing ones);
+- ``calibrate``: :func:`calibration.calibrate_fleet.calibrate_fleet` (UKF) into
+  ``WORK/features``: the client reads one unit at a time, a lockstep task holds at most
+  ``calibration.calibrate_fleet.LOCKSTEP_MAX_ROWS`` samples, every unit is written when done (a
+  rerun skips the units written);
 - ``features``: the pipeline's features stage on that table: rows per unit from the part
   files' footers, the columns, the split and the inputs of both input sets.
 
@@ -45,7 +46,7 @@ def preset(n: int, base: str = "ds02"):
     of this script), renumbered 1..N, the last fifth test units."""
     from dataclasses import replace
 
-    from engine_model.fleet import get_preset
+    from engine_model.simulator.fleet import get_preset
 
     ref = get_preset(base)
     specs = []
@@ -65,7 +66,7 @@ def stage(name: str, n: int, work: Path, jobs: int, scheduler: str | None,
     t0 = time.perf_counter()
     fleet, feats = work / "fleet", work / "features"
     if name == "simulate":
-        from engine_model.fleet import simulate
+        from engine_model.simulator.fleet import simulate
 
         if written_units(fleet) == list(range(1, n + 1)):
             status = "kept"
@@ -76,7 +77,7 @@ def stage(name: str, n: int, work: Path, jobs: int, scheduler: str | None,
             rows, status = rep.total_rows, "done"
     elif name == "calibrate":
         from calibration import CalibrationSetup
-        from calibration.fleet import calibrate_fleet
+        from calibration.calibrate_fleet import calibrate_fleet
 
         drift = 0.01 if base == "tiny" else None  # the tiny fleet's fast wear (README)
         setup = CalibrationSetup() if drift is None else CalibrationSetup(
@@ -88,8 +89,8 @@ def stage(name: str, n: int, work: Path, jobs: int, scheduler: str | None,
     elif name == "features":
         from engine_model.datasets import read_columns, read_metadata
         from prognostics.features import resolve_inputs
-        from prognostics.pipeline.config import defaults
-        from prognostics.pipeline.stages import split_units, unit_rows
+        from workflows.pipeline.config import defaults
+        from workflows.pipeline.stages import split_units, unit_rows
 
         per_unit = unit_rows(feats)
         columns = read_columns(feats)

@@ -1,7 +1,7 @@
 """Model versus the C-MAPSS FD002 early-life means at its six operating points.
 
 Run by hand: ``python benchmarks/reference_points.py [CSV]``; prints the % error of every
-channel the reference table shares with the model (:mod:`engine_model.reference`). Only the
+channel the reference table shares with the model (:mod:`engine_model.analysis.reference`). Only the
 SLS TRA 100 row is a design input (within 2 % by construction); the five other rows are
 off-design predictions, and their residual is the starting point of the model-discrepancy work.
 """
@@ -11,8 +11,8 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
-from engine_model import reference  # noqa: E402
-from engine_model.shared_model import default_model  # noqa: E402
+from engine_model.analysis import reference  # noqa: E402
+from engine_model.runtime.shared_model import default_model  # noqa: E402
 
 
 def main():

@@ -40,10 +40,11 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel, atmosphere  # noqa: E402
-from engine_model.bleed_schedule import BleedValveSchedule, FixedOpening  # noqa: E402
-from engine_model.sampling import MAX_CAS_KT  # noqa: E402
-from engine_model.shared_model import default_model  # noqa: E402
+from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel
+from engine_model.analysis.sampling import MAX_CAS_KT  # noqa: E402
+from engine_model.physics import atmosphere  # noqa: E402
+from engine_model.physics.bleed_schedule import BleedValveSchedule, FixedOpening  # noqa: E402
+from engine_model.runtime.shared_model import default_model  # noqa: E402
 from engine_model.units import KT_TO_MS, k_to_r  # noqa: E402
 
 OPENINGS = np.round(np.arange(0.0, 0.4001, 0.025), 3)
@@ -246,7 +247,7 @@ def audit():
 
 
 def propose():
-    """Design the VBV schedule from the audit (the rules in engine_model.bleed_schedule's
+    """Design the VBV schedule from the audit (the rules in engine_model.physics.bleed_schedule's
     module doc) and print it: the fan and Mach biases, the knots of F, the core-speed closing
     band and the ground limit."""
     req = requirements(envelope_grid())

@@ -1,18 +1,18 @@
 """Calibration of the engine model: estimators of the health parameters ``theta``.
 
 One interface (:mod:`calibration.base`; setup, data, observability and result in
-:mod:`calibration.setup`, :mod:`calibration.series`, :mod:`calibration.observability`,
+:mod:`calibration.estimation_setup`, :mod:`calibration.series`, :mod:`calibration.observability`,
 :mod:`calibration.result`): ``get_estimator(name).estimate(df_unit, setup)``
 returns a :class:`CalibrationResult`. Methods: ``ukf`` (:mod:`calibration.ukf`), ``ekf``
 (:mod:`calibration.ekf`), ``mhe`` and ``map_cycle`` (:mod:`calibration.mhe`). Fleets:
-:mod:`calibration.fleet`; comparison against truth and the Cramér-Rao bound:
+:mod:`calibration.calibrate_fleet`; comparison against truth and the Cramér-Rao bound:
 :mod:`calibration.compare`, :mod:`calibration.crb`.
 """
 
 from .base import ESTIMATORS, Estimator, estimator_class, get_estimator
+from .estimation_setup import CalibrationSetup
 from .observability import UnobservableError, UnobservableWarning
 from .result import CalibrationResult
-from .setup import CalibrationSetup
 
 __all__ = ["ESTIMATORS", "CalibrationResult", "CalibrationSetup", "Estimator",
            "UnobservableError", "UnobservableWarning", "estimator_class", "get_estimator"]

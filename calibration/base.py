@@ -8,10 +8,10 @@ virtual channel, normalised residuals and diagnostics. Estimators are looked up 
 :data:`ESTIMATORS` (``ukf``, ``ekf``, ``mhe``, ``map_cycle``) through :func:`get_estimator`.
 
 The pieces every estimator shares live in their own modules: the state-space model and the
-setup (:mod:`calibration.setup`), a unit's checked arrays (:mod:`calibration.series`), the
-observability check (:mod:`calibration.observability`) and the result
+setup (:mod:`calibration.estimation_setup`), a unit's checked arrays (:mod:`calibration.series`),
+the observability check (:mod:`calibration.observability`) and the result
 (:mod:`calibration.result`). An estimator sees the engine only through
-:class:`engine_model.interface.SteadyStateModel`.
+:class:`engine_model.solver.interface.SteadyStateModel`.
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from collections.abc import Callable, Sequence
 
 import pandas as pd
 
-from engine_model.interface import SteadyStateModel
-from engine_model.shared_model import default_model
+from engine_model.runtime.shared_model import default_model
+from engine_model.solver.interface import SteadyStateModel
 from engine_model.validation import InputError
 
+from .estimation_setup import CalibrationSetup
 from .result import CalibrationResult
-from .setup import CalibrationSetup
 
 
 class Estimator(ABC):

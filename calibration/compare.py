@@ -40,10 +40,10 @@ from engine_model import datasets
 from engine_model.validation import InputError
 
 from .base import default_model
+from .calibrate_fleet import calibrate_fleet
 from .crb import posterior_crb, unit_sensitivities, windowed_crb
-from .fleet import calibrate_fleet
+from .estimation_setup import CalibrationSetup
 from .series import prepare_unit
-from .setup import CalibrationSetup
 
 DEFAULT_METHODS = ("ukf", "ekf", "mhe", "map_cycle")
 

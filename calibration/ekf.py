@@ -1,7 +1,7 @@
 """Extended Kalman filter of the health parameters with exact model sensitivities.
 
-Same state space as the UKF (:mod:`calibration.setup`, paper eq. 5-6). Per sample ``n`` and
-lane (unit)::
+Same state space as the UKF (:mod:`calibration.estimation_setup`, paper eq. 5-6). Per sample ``n``
+and lane (unit)::
 
     predict   P <- P + q^2 dtau_n I                                  (m unchanged)
     linearise x_n solves r(x, w_n, m) = 0 (compiled Newton, warm-started from the previous

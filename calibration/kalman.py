@@ -1,7 +1,7 @@
 """Random-walk Kalman filters of the health parameters over whole units, in lockstep groups.
 
 The UKF (:mod:`calibration.ukf`) and the EKF (:mod:`calibration.ekf`) share everything but the
-measurement update: the state space of :mod:`calibration.setup` (theta a random walk in
+measurement update: the state space of :mod:`calibration.estimation_setup` (theta a random walk in
 operating time, the exact steady-state model as the measurement), the data preparation, the
 observability check, this driver and the final ``x_hat``. The filter state and its model
 evaluation are :class:`lockstep.LockstepFilter`.
@@ -28,11 +28,11 @@ import pandas as pd
 from engine_model.channels import W_NAMES
 
 from .base import Estimator
+from .estimation_setup import CalibrationSetup
 from .lockstep import LockstepFilter
 from .observability import check_observability
 from .result import CalibrationResult, make_result
 from .series import UnitSeries, prepare_unit
-from .setup import CalibrationSetup
 
 
 def _stack_padded(series: Sequence[UnitSeries], attr: str, n_max: int) -> np.ndarray:

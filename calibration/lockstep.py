@@ -15,7 +15,7 @@ little and theta less, so the Newton-chord iteration converges in 1-3 residual e
 without a fresh Jacobian. A point that does not converge from there is retried by the model
 (``solve_from(..., retry=True)``); if it still fails, the lane skips the update of that sample.
 
-The model is any :class:`engine_model.interface.SteadyStateModel`: the engine, or an analytic
+The model is any :class:`engine_model.solver.interface.SteadyStateModel`: the engine, or an analytic
 model in the tests.
 """
 
@@ -25,9 +25,9 @@ from abc import abstractmethod
 
 import numpy as np
 
-from engine_model.interface import SteadyStateModel
+from engine_model.solver.interface import SteadyStateModel
 
-from .setup import CalibrationSetup
+from .estimation_setup import CalibrationSetup
 
 
 class LockstepFilter:

@@ -6,8 +6,8 @@ Model (paper eq. 5-6, with the steady state as equality constraints)::
     y(t)     = h(x(t), w(t), theta(t)) + eps,  eps ~ N(0, R(t))  R from the sensor-noise table
     0        = r(x(t), w(t), theta(t))                          steady state, 7 unknowns x
 
-``dtau`` follows the setup's drift model (``setup.drift_per``, :mod:`calibration.setup`) in
-constant mode: per cycle (the default with a ``cycle`` column: theta constant within a flight,
+``dtau`` follows the setup's drift model (``setup.drift_per``, :mod:`calibration.estimation_setup`)
+in constant mode: per cycle (the default with a ``cycle`` column: theta constant within a flight,
 the flight's wear entering at the next cycle's first sample) or per recorded operating time.
 The random-walk mode, one theta per sample, always walks in operating time: the time between
 consecutive samples of the same flight (``t`` column), one sample period across a flight
@@ -79,17 +79,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from engine_model.batch_eval import pad_rows
 from engine_model.channels import XS_NAMES
-from engine_model.interface import SymbolicSteadyStateModel
+from engine_model.solver.batch_eval import pad_rows
+from engine_model.solver.interface import SymbolicSteadyStateModel
 from engine_model.validation import InputError
 
 from .base import Estimator, timed
+from .estimation_setup import CalibrationSetup
 from .mhe_nlp import HESSIANS, MODES, N_Y, StageKernels, WindowNLP, reduced_sensitivity
 from .observability import check_observability
 from .result import CalibrationResult, make_result
 from .series import UnitSeries, prepare_unit
-from .setup import CalibrationSetup
 
 _PAD = 16  # a window's length is padded up to a multiple of this (one NLP per padded length)
 

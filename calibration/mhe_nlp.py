@@ -17,7 +17,7 @@ mode only) is the drift prior.
 
 Speed. All per-sample work goes through four small functions of one sample (``x``, all ten
 ``theta``, ``w``, all sixteen measured channels, ``p``), generated as C and compiled once per
-engine model (cached on disk, :mod:`engine_model.codegen`), then evaluated over the window by
+engine model (cached on disk, :mod:`engine_model.solver.codegen`), then evaluated over the window by
 ``Function.map``:
 
 - ``fg``:   the residuals ``r`` and ``e``                       (objective and constraints)
@@ -47,8 +47,8 @@ import numpy as np
 import scipy.sparse as sps
 
 from engine_model.channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES, XS_NAMES
-from engine_model.interface import SymbolicSteadyStateModel
-from engine_model.turbofan import N_UNKNOWNS
+from engine_model.physics.turbofan import N_UNKNOWNS
+from engine_model.solver.interface import SymbolicSteadyStateModel
 
 N_X = N_UNKNOWNS  # the engine model's unknowns per sample
 N_TH = len(THETA_NAMES)
@@ -114,7 +114,7 @@ class StageKernels:
             ca.Function("mhe_hgn", args, [ca.mtimes(je.T, je)], names, ["h"]),
         ]
         if compiled:
-            from engine_model.codegen import compile_functions
+            from engine_model.solver.codegen import compile_functions
 
             lib = compile_functions(self._key + "_k1", fns, opt="-O1")
             self.f = {k: lib["mhe_" + k] for k in ("fg", "grad", "jac", "hgn")}
@@ -134,7 +134,7 @@ class StageKernels:
             fn = ca.Function("mhe_hex", sy["args"] + [lf, lg], [h],
                              sy["names"] + ["lam_f", "lam_g"], ["h"])
             if self.compiled:
-                from engine_model.codegen import compile_functions
+                from engine_model.solver.codegen import compile_functions
 
                 self._hex = compile_functions(self._key + "_k2", [fn], opt="-O1")["mhe_hex"]
             else:

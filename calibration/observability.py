@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine_model.interface import SteadyStateModel
+from engine_model.solver.interface import SteadyStateModel
 from engine_model.validation import InputError
 
+from .estimation_setup import DEFAULT_PRIOR_STD, CalibrationSetup
 from .series import UnitSeries, error_prefix
-from .setup import DEFAULT_PRIOR_STD, CalibrationSetup
 
 
 class UnobservableError(InputError):

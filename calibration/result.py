@@ -12,8 +12,8 @@ import pandas as pd
 from engine_model.channels import OUTPUT_NAMES, XS_NAMES, XV_NAMES
 from engine_model.validation import InputError
 
+from .estimation_setup import CalibrationSetup
 from .series import UnitSeries
-from .setup import CalibrationSetup
 
 HAT_NAMES = tuple(c + "_hat" for c in XS_NAMES + XV_NAMES)
 

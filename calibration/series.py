@@ -2,8 +2,8 @@
 
 :func:`prepare_unit` checks a unit's DataFrame (columns, NaN, envelope, positive readings;
 errors name the source file, unit, row and column), evaluates the sensor noise ``sigma`` of
-:mod:`engine_model.sensor_noise` and the drift time ``dtau`` of the random-walk prior
-(:mod:`calibration.setup`: per cycle or per time).
+:mod:`engine_model.simulator.sensor_noise` and the drift time ``dtau`` of the random-walk prior
+(:mod:`calibration.estimation_setup`: per cycle or per time).
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import pandas as pd
 
 from engine_model.channels import W_NAMES
 from engine_model.datasets.schema import first_non_number
-from engine_model.sensor_noise import sigma_abs
+from engine_model.simulator.sensor_noise import sigma_abs
 from engine_model.units import C_TO_K, R_PER_K
 from engine_model.validation import ENVELOPE, InputError, check_w
 
-from .setup import CalibrationSetup
+from .estimation_setup import CalibrationSetup
 
 
 def error_prefix(unit, source) -> str:
@@ -105,7 +105,7 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
     column: a missing column, a value that is not a number, a NaN or infinite value, an
     operating point outside the envelope, a reading <= 0 where the noise model needs a
     positive one, two samples with the same cycle and time. Rows are the DataFrame's index
-    labels (:func:`calibration.fleet.calibrate_fleet` sets them to the 1-based rows of the
+    labels (:func:`calibration.calibrate_fleet.calibrate_fleet` sets them to the 1-based rows of the
     user's file)."""
     unit = None
     if "unit" in df.columns and len(df):

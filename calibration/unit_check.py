@@ -10,7 +10,7 @@ is near the new engine's 0), the model is solved at ``theta = 0`` and, per measu
 
 - the ratio ``r = median(model / data)`` and
 - the median normalised residual ``z = median |data - model| / sigma`` (the documented sensor
-  noise of :mod:`engine_model.sensor_noise`)
+  noise of :mod:`engine_model.simulator.sensor_noise`)
 
 are computed. A channel is an error (:class:`~engine_model.validation.InputError` naming the
 unit, the channel and the likely unit) when
@@ -53,8 +53,8 @@ from engine_model.units import (
 )
 from engine_model.validation import ENVELOPE, InputError
 
+from .estimation_setup import CalibrationSetup
 from .series import UnitSeries, error_prefix
-from .setup import CalibrationSetup
 
 N_CHECK = 200  # samples of early life compared with the model at theta = 0
 UNIT_RTOL = 0.05  # converted data within 5 % of the model: the unit is found

@@ -121,8 +121,8 @@ def run(
     import warnings
 
     from calibration import UnobservableWarning
+    from calibration.calibrate_fleet import calibrate_fleet
     from calibration.discrepancy.drift_mle import setup_with_drift_mle
-    from calibration.fleet import calibrate_fleet
     from engine_model.channels import XS_NAMES
 
     with user_errors(), warnings.catch_warnings(record=True) as caught:

@@ -13,6 +13,8 @@ from typing import Annotated
 
 import typer
 
+from engine_model.runtime.critical import in_critical_section
+
 EXIT_FAILED = 1  # a computation failed (no convergence)
 EXIT_USAGE = 2  # bad input or usage (cli.main docstring: the exit-code rule)
 
@@ -170,16 +172,12 @@ def terminate_as_exit() -> Iterator[None]:
     undisturbed). A further Ctrl-C of the user is treated the same way: clean-up is never cut
     short (SIGKILL or Ctrl-\\ end the process at once). A signal that arrives while the block
     is being left is recorded and raises nothing, and one inside a critical section (a lock
-    being taken, a folder being swapped: :mod:`engine_model.datasets.critical`) is raised just
+    being taken, a folder being swapped: :mod:`engine_model.runtime.critical`) is raised just
     after it. Worker processes are spawned, not forked, so none inherits the handlers or the
     thread."""
     import signal
     import threading
     import time
-
-    def in_critical_section() -> bool:  # without importing engine_model (--help stays light):
-        critical = sys.modules.get("engine_model.datasets.critical")  # no section without it
-        return critical is not None and critical.in_critical_section()
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -237,9 +235,9 @@ def terminate_as_exit() -> Iterator[None]:
 
 
 def get_model(quiet: bool = False):
-    """The process-wide engine model (:func:`engine_model.shared_model.default_model`), with a
-    status line on a terminal while it is built (none with ``quiet``)."""
-    from engine_model.shared_model import default_model, is_built
+    """The process-wide engine model (:func:`engine_model.runtime.shared_model.default_model`),
+    with a status line on a terminal while it is built (none with ``quiet``)."""
+    from engine_model.runtime.shared_model import default_model, is_built
 
     if not quiet and not is_built() and sys.stderr.isatty():
         with console(stderr=True).status(

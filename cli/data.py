@@ -74,15 +74,15 @@ def import_cmapss(
 
     Example: hyprog data import-cmapss train_FD002.txt --out fd002
     """
-    from engine_model import datasets
+    from engine_model import datasets, runtime
 
     with user_errors():
         if (test is None) != (rul is None):
             raise CliError("give --test and --rul together (the RUL file belongs to the test"
                            " file)")
-        datasets.check_output(out, directory=True, overwrite=overwrite)
+        datasets.check_dataset_output(out, directory=True, overwrite=overwrite)
         df, meta = datasets.read_cmapss(train, test, rul)
-        with datasets.output_lock(out):
+        with runtime.output_lock(out):
             path = datasets.write_parquet(df, out, meta, overwrite=overwrite)
     rep = {"out": str(path), "rows": len(df), "dev_units": meta["dev_units"],
            "test_units": meta["test_units"], "test_unit_offset": meta["test_unit_offset"]}

@@ -72,13 +72,14 @@ def discover(
         from calibration.discrepancy import DiscoverOptions
         from calibration.discrepancy import discover as run
         from calibration.discrepancy.candidates import check_names
-        from calibration.discrepancy.report import (
+        from calibration.discrepancy.discovery_report import (
             check_report_target,
             report_dict,
             write_report,
         )
         from cli.common import check_choice, get_model
-        from engine_model.datasets import output_lock, read_dataset
+        from engine_model.datasets import read_dataset
+        from engine_model.runtime import output_lock
 
         check_choice(method, "--method", _METHODS)
         p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")

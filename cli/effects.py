@@ -19,7 +19,7 @@ def effects(
 
     Example: hyprog effects --json
     """
-    from engine_model.effects import describe_effects
+    from engine_model.physics.effects import describe_effects
 
     lib = describe_effects()
     if as_json:

@@ -65,7 +65,7 @@ def paper(
     Example: hyprog experiment paper --data features.parquet --out results/paper --seeds 5
     """
     from engine_model.datasets import read_dataset
-    from prognostics.experiment import PARTS, ExperimentConfig, run_experiment
+    from workflows.paper import PARTS, ExperimentConfig, run_experiment
 
     with user_errors(data):
         if ablations == "all":

@@ -7,10 +7,10 @@ Three commands, each a few lines over :class:`engine_model.EngineModel`:
                  speed, and where points fail;
 - ``reference``  the model against the C-MAPSS FD002 reference table, channel by channel.
 
-The logic is in the library (:mod:`engine_model.envelope`, :mod:`engine_model.reference`);
-the engine model is the process-wide one (:func:`cli.common.get_model`). Heavy modules
-(CasADi, the engine model, pandas) are imported inside the functions so that ``hyprog --help``
-is fast.
+The logic is in the library (:mod:`engine_model.analysis.envelope`,
+:mod:`engine_model.analysis.reference`); the engine model is the process-wide one
+(:func:`cli.common.get_model`). Heavy modules (CasADi, the engine model, pandas) are imported
+inside the functions so that ``hyprog --help`` is fast.
 """
 
 from __future__ import annotations
@@ -177,7 +177,7 @@ def _check_point(alt: float, mach: float, tra: float, t2: float | None,
     if dt_isa is not None:
         if not math.isfinite(dt_isa):
             raise CliError(f"--dt-isa {dt_isa}: value must be finite")
-        from engine_model import atmosphere
+        from engine_model.physics import atmosphere
         from engine_model.units import k_to_r
 
         t2_isa = float(k_to_r(atmosphere.t2_from_flight(alt, mach, dt_isa)))
@@ -224,7 +224,7 @@ def envelope(
 
     Example: hyprog model envelope --n 2000 --seed 0
     """
-    from engine_model.envelope import envelope_report
+    from engine_model.analysis.envelope import envelope_report
 
     with user_errors():
         rep = envelope_report(get_model(quiet), n, seed)
@@ -283,7 +283,7 @@ def reference(
 
     Example: hyprog model reference --json
     """
-    from engine_model import reference as lib
+    from engine_model.analysis import reference as lib
 
     path = csv if csv is not None else lib.default_reference_path()
     with user_errors():  # the library's messages name the file

@@ -1,5 +1,5 @@
 """``hyprog pipeline [DATA] --out DIR``: data to RUL and a report, resumable
-(:mod:`prognostics.pipeline`)."""
+(:mod:`workflows.pipeline`)."""
 
 from __future__ import annotations
 
@@ -47,8 +47,8 @@ def pipeline(
 
     Example: hyprog pipeline fleet/ --scheduler tcp://10.0.0.5:8786 --out /shared/results
     """
-    from prognostics.pipeline import load_config, run_pipeline
-    from prognostics.pipeline.config import merge
+    from workflows.pipeline import load_config, run_pipeline
+    from workflows.pipeline.config import merge
 
     with user_errors():
         cfg = load_config(config)

@@ -9,7 +9,8 @@ import typer
 
 from cli.common import CliError, check_choice, console, echo_json, parse_units, user_errors
 
-RECORDS = ("above_10kft", "all")  # engine_model.flight_profiles: the recorded part of a flight
+# engine_model.simulator.flight_profiles: the recorded part of a flight
+RECORDS = ("above_10kft", "all")
 
 
 def simulate(
@@ -50,8 +51,9 @@ def simulate(
 
     Example: hyprog simulate --preset ds02 --out ds02 --scheduler tcp://10.0.0.5:8786
     """
-    from engine_model import datasets, fleet
-    from engine_model.effects import parse_effect_spec
+    from engine_model import datasets, runtime
+    from engine_model.physics.effects import parse_effect_spec
+    from engine_model.simulator import fleet
 
     with user_errors():
         check_choice(fmt, "--format", ("parquet", "h5"))
@@ -67,8 +69,8 @@ def simulate(
         if rate is not None:
             fleet.check_rate(rate)
         n_units = len(fleet.select_units(preset_obj, unit_list))
-        out = datasets.check_output(out, directory=fmt == "parquet", overwrite=overwrite)
-        with datasets.output_lock(out):  # one writer per output
+        out = datasets.check_dataset_output(out, directory=fmt == "parquet", overwrite=overwrite)
+        with runtime.output_lock(out):  # one writer per output
             path, report = _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects,
                                 record, fmt, overwrite, n_units, as_json or quiet, scheduler,
                                 jobs)

@@ -52,9 +52,11 @@ def train(
 
     Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
     """
-    from engine_model.datasets import output_lock, read_dataset
+    from engine_model.datasets import read_dataset
+    from engine_model.runtime import output_lock
     from prognostics.checkpoint import check_model_target, save_model
-    from prognostics.training import TrainConfig, fit
+    from prognostics.ensemble import fit
+    from prognostics.training import TrainConfig
 
     with user_errors(features):
         if ensemble < 1:

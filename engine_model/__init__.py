@@ -13,12 +13,12 @@ from .validation import ENVELOPE, InputError
 
 # name -> submodule that defines it, imported when the name is first asked for
 _LAZY = {
-    "EngineModel": "model",
-    "ResidualSystem": "model",
-    "SolveResult": "model",
-    "DesignSpec": "design",
-    "EngineDesign": "design",
-    "design_engine": "design",
+    "EngineModel": "solver.model",
+    "ResidualSystem": "solver.model",
+    "SolveResult": "solver.model",
+    "DesignSpec": "physics.design",
+    "EngineDesign": "physics.design",
+    "design_engine": "physics.design",
 }
 
 __all__ = [

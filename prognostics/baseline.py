@@ -6,8 +6,8 @@ How far does physics alone get? No network, no training data beyond the calibrat
    cycle's samples, placed by name in a 10-vector of zeros (``THETA_NAMES`` order; a parameter
    not estimated, or NaN because unobservable, stays at its nominal 0).
 2. **Health index.** ``HI_c = HealthIndex(model)(θ̂_c)``, the simulator's N-CMAPSS definition
-   (``engine_model.degradation``: the minimum of the normalised stall and EGT margins at the
-   reference condition, 1 for a new engine, 0 at failure), evaluated with the engine model.
+   (``engine_model.simulator.degradation``: the minimum of the normalised stall and EGT margins at
+   the reference condition, 1 for a new engine, 0 at failure), evaluated with the engine model.
 3. **Trend, refitted at every cycle ``n`` from cycles ``1..n`` only** (a prognosis may not
    look ahead). The form is a linear-to-exponential degradation curve,
 
@@ -122,7 +122,8 @@ def unit_rul(cycles, hi, max_rul: float) -> np.ndarray:
 def baseline_per_cycle(df: pd.DataFrame, hi_fn: Callable[[np.ndarray], np.ndarray],
                        max_rul: float, units: Sequence[int] | None = None) -> pd.DataFrame:
     """Per (unit, cycle): θ̂ (10 columns), ``HI``, ``RUL_pred`` and true ``RUL`` when present.
-    ``hi_fn`` maps an (n, 10) θ array to HI (``engine_model.degradation.HealthIndex(model)``)."""
+    ``hi_fn`` maps an (n, 10) θ array to HI
+    (``engine_model.physics.health_index.HealthIndex(model)``)."""
     if not max_rul > 0:
         raise InputError(f"baseline: max_rul must be positive, got {max_rul}")
     if units is not None:
@@ -152,8 +153,9 @@ def baseline_predictions(df: pd.DataFrame, hi_fn: Callable[[np.ndarray], np.ndar
 
 def engine_health_index():
     """``HealthIndex`` of the process-wide default engine model
-    (:func:`engine_model.shared_model.default_model`: built, or loaded from the C cache, once)."""
-    from engine_model.degradation import HealthIndex
-    from engine_model.shared_model import default_model
+    (:func:`engine_model.runtime.shared_model.default_model`: built, or loaded from the C cache,
+    once)."""
+    from engine_model.physics.health_index import HealthIndex
+    from engine_model.runtime.shared_model import default_model
 
     return HealthIndex(default_model())

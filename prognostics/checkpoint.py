@@ -45,7 +45,7 @@ from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
 from engine_model.datasets import hyprog_version
-from engine_model.datasets.atomic import (
+from engine_model.runtime.atomic import (
     default_mode,
     remove_path,
     remove_stale_temporaries_of,

@@ -35,8 +35,17 @@ from .features import TARGET, check_table, sort_table
 from .metrics import evaluate_predictions
 from .models import build_model
 from .scaling import MinMaxScaler
-from .splits import segments
-from .training import Member, TrainConfig, deterministic, predict_windows, resolve_device
+from .splits import CONFORMAL, TRAIN, segments
+from .training import (
+    Member,
+    TrainConfig,
+    deterministic,
+    predict_windows,
+    prepare,
+    progress_bar,
+    resolve_device,
+    train_member,
+)
 from .windows import make_windows
 
 
@@ -122,3 +131,30 @@ class RulModel:
             raise InputError(f"{source}: no {TARGET} column to evaluate against")
         pred = self.predict(df, units, device, source, progress)
         return evaluate_predictions(pred), pred
+
+
+def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
+        seeds: Sequence[int] | None = None, quiet: bool = True, source: str = "table"):
+    """Train one network per seed (default: ``config.seed``) on ``df`` -> a
+    :class:`RulModel` (with a conformal interval when ``config.conformal_units``)."""
+    prep = prepare(df, metadata, config, source)
+    cfg = prep.config
+    device = resolve_device(cfg.device)
+    seeds = [cfg.seed] if seeds is None else [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("no seeds to train")
+    members = []
+    for s in seeds:
+        label = f"{cfg.model} {cfg.inputs} seed {s}"
+        with progress_bar(len(prep.windows[TRAIN]), label, quiet) as (on_batch, on_epoch):
+            members.append(train_member(prep, s, device, on_batch, on_epoch))
+    model = RulModel(cfg, tuple(prep.columns), prep.scaler, members)
+    conf = prep.windows.get(CONFORMAL)
+    if conf is not None and len(conf):
+        with deterministic(device):
+            preds = np.mean([predict_windows(net, conf, device)
+                             for net in model.networks(device)], axis=0)
+        y_true = prep.frame[TARGET].to_numpy(np.float64)[conf.rows]
+        model.conformal = SplitConformal.calibrate(y_true, preds, cfg.alpha,
+                                                   sorted(set(cfg.conformal_units)))
+    return model

@@ -1,10 +1,10 @@
 """Atomic output files: a reader never sees half a file, an error leaves the old file alone.
 
 Every writer builds its file as a hidden temporary sibling (``.<name>.tmp-<host>-<pid>-<random>``,
-:func:`engine_model.datasets.atomic.temporary_prefix`) and moves it into place with
+:func:`engine_model.runtime.atomic.temporary_prefix`) and moves it into place with
 ``os.replace`` (atomic on POSIX within a file system) only after writing succeeded; on any
 exception the temporary is removed. A writer killed outright (SIGKILL) leaves only its hidden
-temporary, which :func:`engine_model.datasets.atomic.remove_stale_temporaries` deletes once
+temporary, which :func:`engine_model.runtime.atomic.remove_stale_temporaries` deletes once
 that process is gone.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from engine_model.datasets.atomic import temporary_prefix
+from engine_model.runtime.atomic import temporary_prefix
 
 
 @contextmanager

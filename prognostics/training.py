@@ -5,7 +5,8 @@ ICLR 2018), learning rate 1e-3, mini-batches of 1024; Xavier initialisation; at 
 or 30 (CNN) epochs; early stopping with patience 5 on the validation loss, the weights of the
 best validation epoch restored at the end.
 
-Pipeline of :func:`fit`:
+Pipeline of :func:`prognostics.ensemble.fit` (this module trains one network per seed; the
+ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
 
 1. development and test units (:func:`splits.development_and_test_units`), the input columns
    (:func:`features.resolve_inputs`), roles per row (:func:`splits.assign_roles`: validation
@@ -32,7 +33,7 @@ from __future__ import annotations
 import copy
 import os
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 
@@ -315,33 +316,3 @@ def progress_bar(n_windows: int, label: str, quiet: bool) -> Iterator[tuple]:
 
     with prog:
         yield on_batch, on_epoch
-
-
-def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
-        seeds: Sequence[int] | None = None, quiet: bool = True, source: str = "table"):
-    """Train one network per seed (default: ``config.seed``) on ``df`` -> a
-    :class:`ensemble.RulModel` (with a conformal interval when ``config.conformal_units``)."""
-    from .conformal import SplitConformal
-    from .ensemble import RulModel
-
-    prep = prepare(df, metadata, config, source)
-    cfg = prep.config
-    device = resolve_device(cfg.device)
-    seeds = [cfg.seed] if seeds is None else [int(s) for s in seeds]
-    if not seeds:
-        raise InputError("no seeds to train")
-    members = []
-    for s in seeds:
-        label = f"{cfg.model} {cfg.inputs} seed {s}"
-        with progress_bar(len(prep.windows[TRAIN]), label, quiet) as (on_batch, on_epoch):
-            members.append(train_member(prep, s, device, on_batch, on_epoch))
-    model = RulModel(cfg, tuple(prep.columns), prep.scaler, members)
-    conf = prep.windows.get(CONFORMAL)
-    if conf is not None and len(conf):
-        with deterministic(device):
-            preds = np.mean([predict_windows(net, conf, device)
-                             for net in model.networks(device)], axis=0)
-        y_true = prep.frame[TARGET].to_numpy(np.float64)[conf.rows]
-        model.conformal = SplitConformal.calibrate(y_true, preds, cfg.alpha,
-                                                   sorted(set(cfg.conformal_units)))
-    return model

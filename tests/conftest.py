@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from engine_model import EngineModel
-from engine_model.atmosphere import t2_from_flight
+from engine_model.physics.atmosphere import t2_from_flight
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_NAME = "cmapss-fd002-operating-points.csv"
@@ -48,8 +48,8 @@ def reference_csv():
 @pytest.fixture(scope="session")
 def model():
     """The compiled engine model (default design, no effects): the process-wide one that the
-    library's own callers share (:func:`engine_model.shared_model.default_model`)."""
-    from engine_model.shared_model import default_model
+    library's own callers share (:func:`engine_model.runtime.shared_model.default_model`)."""
+    from engine_model.runtime.shared_model import default_model
 
     return default_model()
 

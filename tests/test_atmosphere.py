@@ -1,10 +1,10 @@
-"""ISA atmosphere and free-stream total conditions (engine_model.atmosphere)."""
+"""ISA atmosphere and free-stream total conditions (engine_model.physics.atmosphere)."""
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from engine_model import atmosphere
+from engine_model.physics import atmosphere
 from engine_model.units import FT_TO_M
 
 TROPOPAUSE_FT = 11000.0 / FT_TO_M  # 36,089.24 ft
@@ -72,7 +72,7 @@ def test_static_temperature_inverts_total_temperature():
 
 def test_total_temperature_energy_equation():
     # h(Tt) - h(Ts) = V^2 / 2 with V the true airspeed
-    from engine_model import gas
+    from engine_model.physics import gas
 
     for Ts, mach in ((288.15, 0.3), (218.81, 0.84), (216.65, 0.6)):
         Tt = float(atmosphere.total_temperature(Ts, mach))

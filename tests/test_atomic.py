@@ -1,4 +1,4 @@
-"""Atomic output helpers (engine_model.datasets.atomic): what a killed writer leaves is cleaned
+"""Atomic output helpers (engine_model.runtime.atomic): what a killed writer leaves is cleaned
 by the next writer of the same output, and nothing else is touched."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from engine_model.datasets.atomic import (
+from engine_model.runtime.atomic import (
     host_name,
     remove_stale_temporaries,
     remove_stale_temporaries_of,
@@ -96,7 +96,7 @@ def test_a_signal_between_the_two_renames_puts_the_old_output_back(tmp_path, mon
 
     import pytest
 
-    from engine_model.datasets import atomic
+    from engine_model.runtime import atomic
 
     target, tmp = tmp_path / "out", tmp_path / ".out.tmp-x"
     target.mkdir()

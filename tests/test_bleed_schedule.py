@@ -1,11 +1,11 @@
-"""The variable-bleed-valve schedule (engine_model.bleed_schedule): shut at the design point and
-at high core speed, open at flight idle, limited at ground-idle fan speeds, monotone, smooth,
-and the same on floats, numpy arrays and CasADi symbols."""
+"""The variable-bleed-valve schedule (engine_model.physics.bleed_schedule): shut at the design
+point and at high core speed, open at flight idle, limited at ground-idle fan speeds, monotone,
+smooth, and the same on floats, numpy arrays and CasADi symbols."""
 
 import casadi as ca
 import numpy as np
 
-from engine_model.bleed_schedule import BleedValveSchedule
+from engine_model.physics.bleed_schedule import BleedValveSchedule
 
 S = BleedValveSchedule()
 

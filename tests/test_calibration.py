@@ -23,7 +23,7 @@ from calibration.crb import posterior_crb, unit_posterior_crb, window_crb, windo
 from calibration.series import prepare_unit
 from engine_model import datasets
 from engine_model.channels import OUTPUT_NAMES, PAPER_THETA, THETA_NAMES, XS_NAMES, XV_NAMES
-from engine_model.sensor_noise import add_noise
+from engine_model.simulator.sensor_noise import add_noise
 from tests.conftest import REPO
 
 # per-cycle truth of the paper's three parameters (cycles 1..4)

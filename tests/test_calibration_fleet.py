@@ -12,9 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 from calibration import CalibrationSetup, get_estimator
+from calibration.calibrate_fleet import calibrate_fleet, features_of, plan_tasks
 from calibration.compare import compare, format_report
 from calibration.crb import unit_posterior_crb, unit_sensitivities, windowed_crb
-from calibration.fleet import calibrate_fleet, features_of, plan_tasks
 from calibration.result import HAT_NAMES
 from calibration.series import prepare_unit
 from cli.main import app
@@ -56,7 +56,7 @@ def test_plan_balances_lockstep_groups_and_splits_windowed_methods():
 
 
 def test_units_are_listed_without_reading_the_fleet(small):
-    from calibration.fleet import dataset_units
+    from calibration.calibrate_fleet import dataset_units
     from engine_model import InputError
 
     path, _ = small
@@ -71,7 +71,7 @@ def test_effects_are_held_in_the_model_and_in_the_resume_settings(small, tmp_pat
     same canonical entry in the metadata; resuming with other effects, or none, is refused
     naming them; a bad specification fails before anything is written."""
     from engine_model import InputError
-    from engine_model.effects import parse_effect_spec
+    from engine_model.physics.effects import parse_effect_spec
 
     path, _ = small
     out = tmp_path / "features"

@@ -12,8 +12,8 @@ import pytest
 
 from cli.common import get_model
 from cli.main import app
-from engine_model.reference import default_reference_path
-from engine_model.sampling import envelope_points
+from engine_model.analysis.reference import default_reference_path
+from engine_model.analysis.sampling import envelope_points
 from engine_model.units import T_STD_K, T_STD_R, k_to_r
 from tests.cli_checks import assert_user_error, cli_runner
 

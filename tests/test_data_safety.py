@@ -28,8 +28,8 @@ import pytest
 
 from cli.main import app
 from engine_model import datasets
-from engine_model.datasets.atomic import host_name
-from engine_model.datasets.lock import lock_path
+from engine_model.runtime.atomic import host_name
+from engine_model.runtime.lock import lock_path
 from engine_model.units import FT_TO_M, PSIA_TO_PA, R_PER_K
 from tests.cli_checks import assert_user_error as assert_error
 from tests.cli_checks import cli_runner
@@ -240,19 +240,20 @@ def test_theta_at_a_bound_and_sensors_used_are_reported(runner, tmp_path, small)
 
 def test_samples_that_did_not_converge_are_counted_in_the_text_report(runner, tmp_path,
                                                                       monkeypatch):
-    import calibration.fleet
+    import calibration.calibrate_fleet
     from calibration import CalibrationSetup
 
     def fake(*args, **kwargs):
-        run_ = calibration.fleet.FleetRun(method="ukf", setup=CalibrationSetup(), options={},
-                                          sensors=["Wf", "Nf"], seconds=1.0)
+        run_ = calibration.calibrate_fleet.FleetRun(
+            method="ukf", setup=CalibrationSetup(), options={}, sensors=["Wf", "Nf"],
+            seconds=1.0)
         run_.units = {1: {"samples": 100, "seconds": 1.0, "n_nonconverged": 3,
                           "unobservable": [], "sensors": ["Wf", "Nf"], "warnings": []},
                       2: {"samples": 50, "seconds": 1.0, "n_nonconverged": 0,
                           "unobservable": [], "sensors": ["Wf", "Nf"], "warnings": []}}
         return run_
 
-    monkeypatch.setattr(calibration.fleet, "calibrate_fleet", fake)
+    monkeypatch.setattr(calibration.calibrate_fleet, "calibrate_fleet", fake)
     r = run(runner, "calibrate", TINY, "--out", tmp_path / "f")
     assert r.exit_code == 0, r.stderr
     assert "3 of 150 samples did not converge (unit 1: 3)" in r.stdout

@@ -28,11 +28,12 @@ from calibration.discrepancy.candidates import (
 from calibration.discrepancy.drift_mle import setup_with_drift_mle
 from calibration.discrepancy.max_stat import screen
 from calibration.discrepancy.null_fit import Problem, fit, unit_data
-from calibration.discrepancy.score_test import efficient_scores
+from calibration.discrepancy.score_statistics import efficient_scores
 from calibration.discrepancy.synthetic import unit_with_effect
 from cli.main import app
-from engine_model import EngineModel, fleet
-from engine_model.effects import parse_effect_spec
+from engine_model import EngineModel
+from engine_model.physics.effects import parse_effect_spec
+from engine_model.simulator import fleet
 
 BLEED = 0.015
 SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)

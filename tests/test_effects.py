@@ -6,9 +6,9 @@ import pandas as pd
 import pytest
 
 from engine_model import OUTPUT_NAMES, XS_NAMES, EngineModel
-from engine_model.bleed_schedule import FixedOpening
-from engine_model.effect_library import Dynamics
-from engine_model.effects import (
+from engine_model.physics.bleed_schedule import FixedOpening
+from engine_model.physics.effect_library import Dynamics
+from engine_model.physics.effects import (
     Effect,
     EffectSpecError,
     Param,

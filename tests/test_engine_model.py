@@ -12,18 +12,9 @@ import pandas as pd
 import pytest
 from scipy.optimize import brentq
 
-from engine_model import (
-    OUTPUT_NAMES,
-    THETA_NAMES,
-    W_NAMES,
-    EngineModel,
-    InputError,
-    atmosphere,
-    components,
-    gas,
-    turbofan,
-)
-from engine_model.effects import Effect, Param
+from engine_model import OUTPUT_NAMES, THETA_NAMES, W_NAMES, EngineModel, InputError
+from engine_model.physics import atmosphere, components, gas, turbofan
+from engine_model.physics.effects import Effect, Param
 
 from .conftest import isa_t2_R, reference_csv, w_rows
 
@@ -716,7 +707,7 @@ def test_effect_shifts_only_its_channel(model):
 def test_c_newton_driver_runs_the_numpy_iteration(model):
     """The batched Newton in C (newton_batch.c, threads) and the numpy reference
     implementation take the same steps: same iteration counts, same roots."""
-    from engine_model.sampling import random_envelope
+    from engine_model.analysis.sampling import random_envelope
 
     w, th = random_envelope(400, seed=11)
     x0 = model.initial_guess(w, th)

@@ -4,7 +4,7 @@ For ``y = y0 + A theta`` with Gaussian noise and a random-walk theta, the Kalman
 exact posterior; the unscented transform of a linear function is exact, and the EKF's
 linearisation is the function itself, so the UKF, the EKF and the textbook Kalman filter
 (Kalman 1960; Simon, *Optimal State Estimation*, Wiley 2006, ch. 5) agree to round-off. These
-tests run the filters through the same :class:`engine_model.interface.SteadyStateModel`
+tests run the filters through the same :class:`engine_model.solver.interface.SteadyStateModel`
 interface the engine implements, without building the engine (milliseconds).
 """
 
@@ -17,9 +17,9 @@ import pytest
 from calibration import CalibrationSetup, get_estimator
 from calibration.series import prepare_unit
 from engine_model.channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES, XS_NAMES
-from engine_model.interface import Sensitivities, SteadyStateModel
-from engine_model.newton_driver import SolveResult
-from engine_model.sensor_noise import sigma_abs
+from engine_model.simulator.sensor_noise import sigma_abs
+from engine_model.solver.interface import Sensitivities, SteadyStateModel
+from engine_model.solver.newton_driver import SolveResult
 
 SENSORS = ("Wf", "T30", "T48", "T50", "P30", "Nc")
 PARAMS = ("HPT_eff_mod", "LPT_eff_mod", "LPT_flow_mod")

@@ -9,18 +9,11 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.main import app
-from engine_model import (
-    THETA_NAMES,
-    W_NAMES,
-    XS_NAMES,
-    XV_NAMES,
-    EngineModel,
-    datasets,
-    fleet,
-    sensor_noise,
-)
-from engine_model import degradation as dg
-from engine_model.effects import parse_effect_spec
+from engine_model import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES, EngineModel, datasets
+from engine_model.physics import health_index as hix
+from engine_model.physics.effects import parse_effect_spec
+from engine_model.simulator import degradation as dg
+from engine_model.simulator import fleet, sensor_noise
 
 runner = CliRunner()
 
@@ -100,7 +93,7 @@ def test_noise_has_the_documented_standard_deviation():
 
 @pytest.mark.parametrize("mode", list(dg.MODES))
 def test_every_failure_mode_reaches_the_limit_at_eol(model, mode):
-    hi_fn = dg.HealthIndex(model)
+    hi_fn = hix.HealthIndex(model)
     h = dg.simulate_health(model, mode, (40, 60), (10, 20), np.random.default_rng(1),
                            hi_fn=hi_fn)
     assert 40 <= h.eol <= 60 and 10 <= h.t_s <= 20
@@ -113,18 +106,18 @@ def test_every_failure_mode_reaches_the_limit_at_eol(model, mode):
 
 
 def test_health_index_definition(model):
-    hi_fn = dg.HealthIndex(model)
+    hi_fn = hix.HealthIndex(model)
     assert hi_fn(np.zeros(10))[0] == pytest.approx(1.0)
     th = np.zeros(10)
     th[THETA_NAMES.index("HPT_eff_mod")] = -0.02
     c = hi_fn.components(th)
-    m = dg.reference_margins(model, th)
-    assert c["EGT"][0] == pytest.approx((hi_fn.t48_lim - m["T48"][0]) / dg.EGT_MARGIN_DEGR)
+    m = hix.reference_margins(model, th)
+    assert c["EGT"][0] == pytest.approx((hi_fn.t48_lim - m["T48"][0]) / hix.EGT_MARGIN_DEGR)
     assert hi_fn(th)[0] == pytest.approx(min(v[0] for v in c.values()))
 
 
 def test_harder_missions_wear_faster(model):
-    hi_fn = dg.HealthIndex(model)
+    hi_fn = hix.HealthIndex(model)
     mild = dg.simulate_health(model, "HPT", (30, 30), (10, 10), np.random.default_rng(5),
                               severity=np.full(30, 0.8), hi_fn=hi_fn)
     hard = dg.simulate_health(model, "HPT", (30, 30), (10, 10), np.random.default_rng(5),

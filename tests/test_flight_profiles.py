@@ -5,8 +5,8 @@ import time
 import numpy as np
 import pytest
 
-from engine_model import flight_profiles as fp
-from engine_model.atmosphere import t2_from_flight
+from engine_model.physics.atmosphere import t2_from_flight
+from engine_model.simulator import flight_profiles as fp
 from engine_model.validation import InputError, check_w
 
 CLASSES = (1, 2, 3)

@@ -1,11 +1,11 @@
-"""Real-gas properties (engine_model.gas): known values, integrals, inversions."""
+"""Real-gas properties (engine_model.physics.gas): known values, integrals, inversions."""
 
 import numpy as np
 import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from engine_model import gas
+from engine_model.physics import gas
 
 TEMPS = np.linspace(200.0, 2000.0, 37)  # the validity range of Walsh & Fletcher F3.23
 FARS = (0.0, 0.02, 0.05)

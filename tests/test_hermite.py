@@ -1,9 +1,9 @@
-"""engine_model.hermite: the monotone cubic Hermite tables of the controller's schedules."""
+"""engine_model.physics.hermite: the monotone cubic Hermite tables of the controller's schedules."""
 
 import casadi as ca
 import numpy as np
 
-from engine_model.hermite import fritsch_carlson_slopes, hermite
+from engine_model.physics.hermite import fritsch_carlson_slopes, hermite
 
 
 def test_keeps_knots_monotonicity_and_flat_stretches():

@@ -17,9 +17,10 @@ OUTSIDE = ("calibration", "prognostics", "cli", "benchmarks")
 
 
 def modules_after_import(statement: str) -> dict[str, bool]:
-    """Which of casadi / torch / engine_model.model are in sys.modules after ``statement``."""
+    """Which of casadi / torch / engine_model.solver.model are in sys.modules after
+    ``statement``."""
     code = (f"import sys, json; {statement}; print(json.dumps({{m: m in sys.modules for m in"
-            " ('casadi', 'torch', 'engine_model.model')}))")
+            " ('casadi', 'torch', 'engine_model.solver.model')}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=REPO)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -34,7 +35,7 @@ def modules_after_import(statement: str) -> dict[str, bool]:
 ])
 def test_reading_data_imports_neither_casadi_nor_torch(statement):
     loaded = modules_after_import(statement)
-    assert loaded == {"casadi": False, "torch": False, "engine_model.model": False}
+    assert loaded == {"casadi": False, "torch": False, "engine_model.solver.model": False}
 
 
 @pytest.mark.parametrize("statement", ["import engine_model", "import calibration"])
@@ -43,12 +44,12 @@ def test_engine_model_and_calibration_do_not_import_torch(statement):
 
 
 def test_engine_model_loads_the_model_on_first_use_only():
-    assert modules_after_import("import engine_model")["engine_model.model"] is False
+    assert modules_after_import("import engine_model")["engine_model.solver.model"] is False
     loaded = modules_after_import("from engine_model import EngineModel, design_engine")
-    assert loaded["engine_model.model"] is True and loaded["casadi"] is True
+    assert loaded["engine_model.solver.model"] is True and loaded["casadi"] is True
     import engine_model
 
-    assert engine_model.EngineModel.__module__ == "engine_model.model"
+    assert engine_model.EngineModel.__module__ == "engine_model.solver.model"
     assert set(engine_model.__all__) <= set(dir(engine_model))
     with pytest.raises(AttributeError, match="no attribute 'NoSuchName'"):
         engine_model.NoSuchName  # noqa: B018
@@ -151,5 +152,5 @@ def test_effect_modules_import_one_way():
     assert relative_imports("effect_base") == {"validation"}
     assert "effects" not in relative_imports("effect_library")
     assert {"effect_base", "effect_library"} <= relative_imports("effects")
-    loaded = modules_after_import("from engine_model.effects import registry, EffectSet")
-    assert loaded == {"casadi": False, "torch": False, "engine_model.model": False}
+    loaded = modules_after_import("from engine_model.physics.effects import registry, EffectSet")
+    assert loaded == {"casadi": False, "torch": False, "engine_model.solver.model": False}

@@ -27,7 +27,7 @@ from pathlib import Path
 import pytest
 
 from engine_model import datasets
-from engine_model.datasets.lock import lock_path
+from engine_model.runtime.lock import lock_path
 from tests.conftest import REPO
 
 TINY = REPO / "data_samples" / "tiny"
@@ -81,7 +81,7 @@ def files(root: Path) -> dict[str, bytes]:
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
     """The uninterrupted simulation of the tiny preset's units 3 and 4 (seed 0)."""
-    from engine_model.fleet import simulate
+    from engine_model.simulator.fleet import simulate
 
     out = tmp_path_factory.mktemp("sim") / "fleet"
     simulate("tiny", out=out, units=[3, 4], seed=0)
@@ -135,7 +135,7 @@ def cut(tmp_path_factory):
     """Unit 3 (first two cycles) and unit 4 (first five) of the tiny fleet, and their
     uninterrupted calibration (``hyprog calibrate --drift 0.01``'s settings)."""
     from calibration import CalibrationSetup
-    from calibration.fleet import calibrate_fleet
+    from calibration.calibrate_fleet import calibrate_fleet
 
     df, meta = datasets.read_dataset(TINY, units=[3, 4])
     keep = ((df["unit"] == 3) & (df["cycle"] <= 2)) | ((df["unit"] == 4) & (df["cycle"] <= 5))
@@ -162,7 +162,7 @@ def test_sigkill_of_calibrate_resumes_to_the_uninterrupted_files(tmp_path, cut):
     assert files(out) == {k: v for k, v in files(ref).items() if k.startswith("unit=3/")}
     # the rerun: what `hyprog calibrate` calls, in this process (one command start less)
     from calibration import CalibrationSetup
-    from calibration.fleet import calibrate_fleet
+    from calibration.calibrate_fleet import calibrate_fleet
 
     run = calibrate_fleet(data, "ukf", CalibrationSetup(drift_std_per_sqrt_h=float(DRIFT)),
                           out=out, keep_results=False)
@@ -279,7 +279,7 @@ def test_a_signal_in_a_critical_section_is_raised_just_after_it():
     """A Ctrl-C while a lock is being taken or a folder swapped does not split the step: the
     section finishes, then the interrupt comes."""
     from cli.common import terminate_as_exit
-    from engine_model.datasets.critical import critical_section
+    from engine_model.runtime.critical import critical_section
 
     finished = []
     with pytest.raises(KeyboardInterrupt), terminate_as_exit():

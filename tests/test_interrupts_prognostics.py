@@ -43,8 +43,8 @@ import pandas as pd
 import pytest
 
 from engine_model import datasets
-from engine_model.datasets.atomic import host_name
-from engine_model.datasets.lock import lock_path
+from engine_model.runtime.atomic import host_name
+from engine_model.runtime.lock import lock_path
 from tests.cli_checks import cli_runner
 from tests.conftest import REPO, synthetic_features
 from tests.test_interrupts import ENV, files, signal_and_wait, start, wait_for
@@ -219,7 +219,8 @@ def trained(tmp_path_factory, one_thread):
     """A synthetic feature table large enough for an epoch to last a few tenths of a second,
     and its uninterrupted ``hyprog train TRAIN`` model (the library's fit and save)."""
     from prognostics.checkpoint import save_model
-    from prognostics.training import TrainConfig, fit
+    from prognostics.ensemble import fit
+    from prognostics.training import TrainConfig
 
     root = tmp_path_factory.mktemp("train")
     df, meta = synthetic_features(samples=(40, 60))
@@ -274,7 +275,7 @@ def discovered(tmp_path_factory, model):
     DISCOVER`` report (the library's discover and write_report)."""
     from calibration import CalibrationSetup
     from calibration.discrepancy import DiscoverOptions, discover
-    from calibration.discrepancy.report import write_report
+    from calibration.discrepancy.discovery_report import write_report
 
     df, meta = datasets.read_dataset(TINY, units=[3])
     root = tmp_path_factory.mktemp("discover")
@@ -327,7 +328,7 @@ EXPERIMENT = ("--seeds", "1", "--epochs", "1", "--ablations", "none", "--no-base
 def experimented(tmp_path_factory, one_thread):
     """The default synthetic feature table and its uninterrupted ``hyprog experiment paper
     EXPERIMENT`` (four runs: FNN and CNN on data-driven and hybrid inputs)."""
-    from prognostics.experiment import ExperimentConfig, run_experiment
+    from workflows.paper import ExperimentConfig, run_experiment
 
     root = tmp_path_factory.mktemp("experiment")
     df, meta = synthetic_features()

@@ -15,9 +15,9 @@ from calibration import CalibrationSetup, UnobservableError, get_estimator
 from calibration.crb import unit_sensitivities, windowed_crb
 from calibration.mhe import segments
 from calibration.series import prepare_unit
-from engine_model import flight_profiles as fp
-from engine_model import sensor_noise
 from engine_model.channels import OUTPUT_NAMES, PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES
+from engine_model.simulator import flight_profiles as fp
+from engine_model.simulator import sensor_noise
 
 N_FLIGHTS = 30
 DECIMATE = 10

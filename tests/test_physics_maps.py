@@ -11,9 +11,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from engine_model import THETA_NAMES, EngineModel, atmosphere, gas, turbofan
-from engine_model.design import DesignSpec
-from engine_model.schedule import ThrottleSchedule, band_max, band_min
+from engine_model import THETA_NAMES, EngineModel
+from engine_model.physics import atmosphere, gas, turbofan
+from engine_model.physics.design import DesignSpec
+from engine_model.physics.schedule import ThrottleSchedule, band_max, band_min
 
 from .conftest import w_rows
 
@@ -274,7 +275,7 @@ def test_flow_capacity_loss_consumes_stall_margin(model):
     line toward choke, the core takes 1.22 % more corrected flow from it, and its
     constant-speed margin rises (+0.07 points at SLS TRA 100). Stage stacking behind that
     exit flow gives the same sign, +0.54 to +1.32 points, in all 72 variants
-    (engine_model.stage_stacking, tests/test_stage_stacking.py,
+    (engine_model.physics.stage_stacking, tests/test_stage_stacking.py,
     benchmarks/results/booster_stage_stacking.md). What consumes the booster's margin at sea
     level is the rematch: an HPC that loses flow capacity raises the booster's working line,
     asserted here at all three points."""
@@ -295,16 +296,16 @@ def test_flow_capacity_loss_consumes_stall_margin(model):
 
 
 def test_health_signatures_keep_their_sign(model):
-    """Every theta at -2 % at SLS take-off, climb and cruise (engine_model.signatures): no
+    """Every theta at -2 % at SLS take-off, climb and cruise (engine_model.analysis.signatures): no
     channel of T24 T30 T48 T50 P30 Nc Wf changes sign between the points where the change
     exceeds the channel's noise sigma, except T24, whose flips are the bleed valves': at cruise
     (35 kft Mach 0.8 TRA 70) the booster needs bleed and the VBVs modulate (4.4 % of its flow,
-    engine_model.bleed_schedule), so a theta that moves the corrected core speed moves the
+    engine_model.physics.bleed_schedule), so a theta that moves the corrected core speed moves the
     opening, and the booster's exit temperature follows the valves. Held at the new engine's
     cruise opening (bleed_schedule.FixedOpening), T24 at cruise keeps its SLS and climb sign
     wherever the change exceeds noise."""
-    from engine_model.bleed_schedule import FixedOpening
-    from engine_model.signatures import DELTA, SIGNATURE_POINTS, signature_table
+    from engine_model.analysis.signatures import DELTA, SIGNATURE_POINTS, signature_table
+    from engine_model.physics.bleed_schedule import FixedOpening
 
     table, sigma, flips = signature_table(model)
     assert {c for _, c in flips} <= {"T24"}, flips

@@ -220,11 +220,11 @@ def test_refused_data_leaves_nothing_behind(runner, tmp_path):
     """P30 in kPa (not psia): the calibrate stage refuses it before writing; the run exits 2
     with one line and the output folder it created is gone."""
     from engine_model.datasets import read_dataset, read_metadata, write_parquet
-    from prognostics.pipeline.stages import DEFAULT_DATA
+    from workflows.pipeline.stages import default_data
 
-    df, _ = read_dataset(DEFAULT_DATA, units=[4])
+    df, _ = read_dataset(default_data(), units=[4])
     data = tmp_path / "kpa"
-    write_parquet(df.assign(P30=df["P30"] * 6.894757), data, read_metadata(DEFAULT_DATA))
+    write_parquet(df.assign(P30=df["P30"] * 6.894757), data, read_metadata(default_data()))
     out = tmp_path / "out"
     r = runner.invoke(app, ["pipeline", str(data), "--out", str(out)])
     assert_one_line_error(r, str(data), "unit 4")

@@ -56,8 +56,8 @@ def data(tmp_path_factory):
 
 
 def run(out: Path, data: Path, **run_table) -> dict:
-    from prognostics.pipeline import run_pipeline
-    from prognostics.pipeline.config import defaults, merge
+    from workflows.pipeline import run_pipeline
+    from workflows.pipeline.config import defaults, merge
 
     cfg = merge(defaults(), {**CONFIG, "run": run_table})
     return run_pipeline(out, cfg, data)
@@ -101,7 +101,7 @@ def test_a_dask_cluster_gives_the_serial_files(tmp_path, data, serial, cluster):
 
 
 def test_simulate_on_a_dask_cluster_gives_the_local_fleet(tmp_path, cluster):
-    from engine_model.fleet import simulate
+    from engine_model.simulator.fleet import simulate
 
     local = tmp_path / "local"
     simulate("tiny", out=local, units=[4], seed=3)

@@ -88,7 +88,8 @@ def test_baseline_from_a_simulated_units_true_theta(model, mode, seed):
     baseline's HI is the simulator's to rounding, and its RUL closes in on the truth: it is
     late (over-estimates) while the exponential onset accelerates, and within 5 cycles over
     the last 5 cycles of life."""
-    from engine_model.degradation import HealthIndex, simulate_health
+    from engine_model.physics.health_index import HealthIndex
+    from engine_model.simulator.degradation import simulate_health
 
     hi = HealthIndex(model)
     tr = simulate_health(model, mode, (60, 60), (25, 25), np.random.default_rng(seed),

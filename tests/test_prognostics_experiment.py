@@ -9,7 +9,7 @@ import pytest
 from engine_model import THETA_NAMES
 from engine_model.channels import XS_NAMES, XV_NAMES
 from engine_model.validation import InputError
-from prognostics.experiment import perfect_calibration, perturb_theta
+from workflows.paper.experiment import perfect_calibration, perturb_theta
 
 from .conftest import synthetic_features
 
@@ -45,7 +45,7 @@ def test_bias_pulls_theta_hat_toward_its_first_cycle(table):
 def test_perfect_calibration_is_the_engine_model_at_the_true_theta(table):
     """Every x̂ column becomes the engine model's output at the row's operating point and
     true θ (all ten), every θ̂ the true θ; nothing else changes."""
-    from engine_model.shared_model import default_model
+    from engine_model.runtime.shared_model import default_model
 
     rows = table.iloc[:12].reset_index(drop=True)
     out = perfect_calibration(rows)

@@ -14,9 +14,9 @@ import torch.nn.functional as F
 
 from engine_model.validation import InputError
 from prognostics.checkpoint import MANIFEST, load_model, save_model, sha256_bytes
-from prognostics.ensemble import RulModel
+from prognostics.ensemble import RulModel, fit
 from prognostics.models import CNN1D, FNN, SameConv1d, build_model, parameter_count
-from prognostics.training import TrainConfig, fit
+from prognostics.training import TrainConfig
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -217,7 +217,7 @@ def test_checkpoint_round_trip(trained, tmp_path):
 def test_save_removes_what_a_killed_writer_left(trained, tmp_path):
     """A writer killed by SIGKILL leaves its hidden temporary; the next save under that folder
     removes it (its process is gone) and keeps a running writer's (this process's)."""
-    from engine_model.datasets.atomic import temporary_prefix
+    from engine_model.runtime.atomic import temporary_prefix
 
     m = trained[0]
     dead = tmp_path / (temporary_prefix("model").rsplit("-", 2)[0] + "-999999999-x")

@@ -1,6 +1,6 @@
-"""The model-versus-reference comparison (engine_model.reference) and the envelope sweep report
-(engine_model.envelope): the table checks and the report arithmetic on a stand-in model, the
-known channels and finite errors on the engine model."""
+"""The model-versus-reference comparison (engine_model.analysis.reference) and the envelope sweep
+report (engine_model.analysis.envelope): the table checks and the report arithmetic on a stand-in
+model, the known channels and finite errors on the engine model."""
 
 import math
 
@@ -9,15 +9,15 @@ import pandas as pd
 import pytest
 
 from engine_model import THETA_NAMES, W_NAMES
-from engine_model.envelope import envelope_report
-from engine_model.reference import (
+from engine_model.analysis.envelope import envelope_report
+from engine_model.analysis.reference import (
     REFERENCE_CHANNELS,
     compare_reference,
     default_reference_path,
     error_table,
     load_reference,
 )
-from engine_model.sampling import envelope_points
+from engine_model.analysis.sampling import envelope_points
 from engine_model.validation import InputError
 
 HEADER = "alt_kft,Mach,TRA,T2,T30,Nc,Ps30"
@@ -114,7 +114,7 @@ def test_envelope_points_are_reproducible_and_inside_the_envelope():
 
 
 def test_engine_model_against_cmapss_has_finite_errors_on_every_channel():
-    from engine_model.shared_model import default_model
+    from engine_model.runtime.shared_model import default_model
 
     records = compare_reference(default_model(), load_reference(default_reference_path()))
     assert all(r["converged"] for r in records)

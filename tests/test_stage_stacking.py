@@ -1,11 +1,11 @@
-"""Stage stacking (engine_model.stage_stacking): the sizing, the exact flow scaling of a
+"""Stage stacking (engine_model.physics.stage_stacking): the sizing, the exact flow scaling of a
 uniformly blocked stack, the stall criterion, stage mismatch, and the sign of the booster's
 margin change behind a fixed throttle."""
 
 import numpy as np
 import pytest
 
-from engine_model.stage_stacking import StageStack
+from engine_model.physics.stage_stacking import StageStack
 
 
 @pytest.fixture(scope="module")

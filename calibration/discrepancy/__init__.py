@@ -86,8 +86,8 @@ Design decisions (what was chosen and why)
    autocorrelation, chi^2 per degree of freedom) and, on simulated data, theta_hat against the
    truth.
 
-Map adaptation: the effect ``map_scaling`` (:mod:`engine_model.effect_library`: efficiency and
-flow scalers of one component, linear and quadratic in its corrected speed minus one) is a
+Map adaptation: the effect ``map_scaling`` (:mod:`engine_model.physics.effect_library`: efficiency
+and flow scalers of one component, linear and quadratic in its corrected speed minus one) is a
 candidate when named (``--candidates ...,map_scaling``), one instance per component, so that
 a model whose map shape is off at part power is corrected and the component named. It is not
 a default candidate, because four free coefficients per component are flexible enough to act

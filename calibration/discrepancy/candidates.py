@@ -1,6 +1,6 @@
 """The candidate effects of the discrepancy loop and their exact output sensitivities.
 
-A *candidate* is one instance of a registered effect (:mod:`engine_model.effects`) with
+A *candidate* is one instance of a registered effect (:mod:`engine_model.physics.effects`) with
 parameters ``phi`` that are absent at their neutral (default) values: a physical effect of the
 steady state (customer bleed, HP off-take, Reynolds effects, inlet loss, nozzle areas), a map
 adaptation of one component (``map_scaling``, one instance per component, when named), or a
@@ -13,11 +13,12 @@ Two kinds, one interface (:class:`CandidateModel`):
   ``EngineModel(effects=[every steady candidate])`` (compiled to C once, cached on disk). At
   ``phi = 0`` it is the base model, and with the accepted effects' values in ``p`` it is the
   current model: every solve and every exact sensitivity ``dy/dtheta``, ``dy/dp`` of the loop
-  goes through this one variant (:meth:`engine_model.interface.SteadyStateModel.sensitivities_at`).
+  goes through this one variant
+  (:meth:`engine_model.solver.interface.SteadyStateModel.sensitivities_at`).
 - *Sensor* candidates do not change the steady state: a reading ``y_c`` becomes
   ``reading(F_c, phi)``. Their derivatives are those of the effect's own
-  :meth:`~engine_model.effects.Effect.apply` on the hook ``sensor:<channel>``, differentiated by
-  CasADi (exact), so a user's own sensor effect is tested the same way.
+  :meth:`~engine_model.physics.effects.Effect.apply` on the hook ``sensor:<channel>``,
+  differentiated by CasADi (exact), so a user's own sensor effect is tested the same way.
 
 Parameters that are unidentified at the null (a *nuisance present only under the
 alternative*, Davies 1977), e.g. the Reynolds effect's ``flow_ratio`` (meaningless while the
@@ -34,8 +35,8 @@ import casadi as ca
 import numpy as np
 
 from engine_model.channels import OUTPUT_NAMES, THETA_NAMES
-from engine_model.effect_library import COMPONENT_MODS, SensorEffect
-from engine_model.effects import Effect, EffectSet, parse_effect_spec, registry
+from engine_model.physics.effect_library import COMPONENT_MODS, SensorEffect
+from engine_model.physics.effects import Effect, EffectSet, parse_effect_spec, registry
 from engine_model.validation import InputError
 
 STEADY_DEFAULT = ("customer_bleed", "hp_offtake", "reynolds", "inlet_loss", "nozzle_area")
@@ -135,7 +136,7 @@ def build_candidates(names=None, sensors=(), has_cycle=True):
 
     The model always carries the library's candidates so that one compiled variant serves
     every choice of ``--candidates``; an untested candidate stays at its neutral value. A
-    sensor effect (a subclass of :class:`~engine_model.effect_library.SensorEffect`) is
+    sensor effect (a subclass of :class:`~engine_model.physics.effect_library.SensorEffect`) is
     instantiated on every sensor; an effect whose parameters need the ``cycle`` context is
     left out when the data have no cycles; series effects (``dynamics``) act on time series,
     not on ``p``, and are refused."""

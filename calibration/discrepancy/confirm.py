@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .null_fit import FitState, Problem, fit
-from .score_test import chibar_pvalue
+from .score_statistics import chibar_pvalue
 
 MIN_SHARE = 0.4
 REMAINDER_Z = 3.0

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from calibration.setup import CalibrationSetup
+from calibration.estimation_setup import CalibrationSetup
 from engine_model.validation import InputError
 
 from .null_fit import FitState, Problem
@@ -96,7 +96,7 @@ def estimate_drift(frames: list, setup: CalibrationSetup, model=None, source=Non
     from .null_fit import coarse_start, fit, unit_data
 
     if model is None:
-        from engine_model.shared_model import default_model
+        from engine_model.runtime.shared_model import default_model
 
         model = default_model()
     cycle_setup = replace(setup, drift_per="cycle")

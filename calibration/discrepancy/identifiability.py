@@ -28,7 +28,7 @@ from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
 from .null_fit import FitState, Problem
-from .score_test import Scores
+from .score_statistics import Scores
 
 ABSORBED_RATIO = 0.05
 AMBIGUOUS_CORR = 0.95

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from calibration.setup import CalibrationSetup
+from calibration.estimation_setup import CalibrationSetup
 from engine_model.channels import THETA_NAMES
 from engine_model.validation import InputError
 
@@ -20,7 +20,7 @@ from .drift_mle import drift_mle
 from .max_stat import screen
 from .noise_check import check_noise
 from .null_fit import FitState, Problem, coarse_start, fit, unit_data, warm_start
-from .score_test import efficient_scores
+from .score_statistics import efficient_scores
 from .unknown import structure
 
 VERDICTS = ("nothing missing", "explained", "partly explained", "unknown effect", "ambiguous")
@@ -159,7 +159,7 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
     setup = setup or CalibrationSetup()
     say = progress or (lambda msg: None)
     if base_model is None:
-        from engine_model.shared_model import default_model
+        from engine_model.runtime.shared_model import default_model
 
         base_model = default_model()
     design = design or getattr(base_model, "design", None)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .score_test import Scores, chibar_pvalue, cone_signs, cone_statistic
+from .score_statistics import Scores, chibar_pvalue, cone_signs, cone_statistic
 
 
 @dataclass

@@ -39,8 +39,8 @@ import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear
 
+from calibration.estimation_setup import CalibrationSetup
 from calibration.series import UnitSeries, prepare_unit
-from calibration.setup import CalibrationSetup
 from engine_model.validation import InputError
 
 from .candidates import CandidateModel

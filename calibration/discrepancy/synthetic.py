@@ -8,7 +8,7 @@ tested and benchmarked (``tests/test_discrepancy*.py``, ``benchmarks/discrepancy
 - A sensor effect (bias, drift) corrupts a reading, not the engine: the unit is simulated
   without noise, the effect applied to its channel (the drift with the row's flight
   ``cycle``), then the documented measurement noise added
-  (:func:`engine_model.sensor_noise.add_noise`) from the generator seeded with ``(seed,
+  (:func:`engine_model.simulator.sensor_noise.add_noise`) from the generator seeded with ``(seed,
   unit, 99)``.
 """
 
@@ -17,8 +17,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from engine_model import EngineModel, fleet, sensor_noise
-from engine_model.effects import parse_effect_spec
+from engine_model import EngineModel
+from engine_model.physics.effects import parse_effect_spec
+from engine_model.simulator import fleet, sensor_noise
 
 from .candidates import steady_effects
 

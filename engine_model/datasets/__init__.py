@@ -9,9 +9,7 @@ module          what is inside
 ``schema``      the table: column groups, canonical order, required columns, integer keys,
                 sorting and normalising a table, column selection
 ``metadata``    the metadata JSON stored with a table (keys, version, sample rate)
-``atomic``      writing through a temporary sibling + ``os.replace``; stale temporaries
-``ownership``   what an existing output path holds: replaced only when hyprog wrote it
-``lock``        one writer per output path (a lock file with the writer's host and pid)
+``provenance``  is an existing path a dataset hyprog wrote (what a writer may replace)
 ``paths``       format detection (directory / suffix / magic bytes)
 ``parquet``     hyprog parquet, partitioned by unit (the native format)
 ``ncmapss_h5``  the N-CMAPSS h5 layout of the published files
@@ -24,7 +22,6 @@ module          what is inside
 Each module's docstring describes its format. Reading data never imports CasADi or torch.
 """
 
-from .atomic import remove_stale_temporaries, remove_stale_temporaries_of
 from .cmapss import (
     CMAPSS_COLUMNS,
     CMAPSS_SENSORS,
@@ -35,7 +32,6 @@ from .cmapss import (
     read_rul_file,
 )
 from .dispatch import read_columns, read_dataset, read_metadata, write_dataset
-from .lock import output_lock
 from .metadata import META_KEY, SAMPLE_RATE_KEY, hyprog_version
 from .ncmapss_h5 import (
     DEFAULT_H5_RATE_HZ,
@@ -47,7 +43,6 @@ from .ncmapss_h5 import (
     read_ncmapss_h5,
     write_ncmapss_h5,
 )
-from .ownership import check_output, written_by_hyprog
 from .parquet import (
     PARQUET_COMPRESSION,
     PARQUET_PART,
@@ -58,6 +53,7 @@ from .parquet import (
     written_units,
 )
 from .paths import H5_SUFFIXES
+from .provenance import check_dataset_output, written_by_hyprog
 from .schema import (
     BOOKKEEPING,
     INT_KEYS,
@@ -78,9 +74,7 @@ __all__ = [
     "write_parquet", "read_parquet", "read_metadata", "read_columns", "write_ncmapss_h5",
     "read_ncmapss_h5", "read_dataset", "write_dataset", "summarize", "canonical_columns",
     "column_groups", "written_units", "write_unit_part", "parquet_unit_writer",
-    "remove_stale_temporaries", "remove_stale_temporaries_of", "hyprog_version", "SOURCE_ROW",
-    "check_output",
-    "written_by_hyprog", "output_lock",
+    "hyprog_version", "SOURCE_ROW", "check_dataset_output", "written_by_hyprog",
     "CMAPSS_COLUMNS", "CMAPSS_SENSORS", "CMAPSS_SETTINGS", "CMAPSS_SOURCE", "read_cmapss",
     "read_cmapss_text", "read_rul_file",
 ]

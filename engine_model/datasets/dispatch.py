@@ -67,7 +67,7 @@ def write_dataset(df: pd.DataFrame, path: str | os.PathLike,
                   format: str | None = None, overwrite: bool = False) -> Path:
     """Write ``df`` as ``format`` ``"parquet"`` or ``"h5"``; None infers it from the suffix
     (``.h5``/``.hdf5`` -> h5, anything else -> parquet). An existing ``path`` is replaced only
-    when hyprog wrote it or with ``overwrite`` (:mod:`.ownership`)."""
+    when hyprog wrote it or with ``overwrite`` (:mod:`.provenance`)."""
     p = Path(path)
     fmt = format or ("h5" if p.suffix.lower() in H5_SUFFIXES else "parquet")
     if fmt == "parquet":

@@ -13,7 +13,7 @@ of whose columns is present is not written (``W`` and ``A`` always are). The roo
 the sample index within its (unit, cycle) divided by ``sample_rate_hz`` (1 Hz when the file
 does not say, as for the published files). Columns outside these groups are not written (a
 warning names them). Reading is chunked and only the rows of the requested units are read.
-Writing is atomic (:mod:`.atomic`).
+Writing is atomic (:mod:`engine_model.runtime.atomic`).
 """
 
 from __future__ import annotations
@@ -29,9 +29,10 @@ import h5py
 import numpy as np
 import pandas as pd
 
+from engine_model.runtime.atomic import atomic_output
+
 from ..channels import NCMAPSS_XS, NCMAPSS_XV, THETA_NAMES, W_NAMES
 from ..validation import InputError, check_columns
-from .atomic import atomic_output
 from .metadata import (
     META_KEY,
     SAMPLE_RATE_KEY,
@@ -41,6 +42,7 @@ from .metadata import (
     sample_rate,
 )
 from .paths import HDF5_MAGIC, existing_path, file_magic
+from .provenance import written_by_hyprog
 from .schema import (
     INT_KEYS,
     REQUIRED_COLUMNS,
@@ -385,7 +387,8 @@ def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
     ``metadata['dev_units']`` / ``['test_units']`` choose the split (a unit in neither is an
     error when either is given; all units are dev when neither is). ``compression`` is an h5py
     filter name (``"gzip"``, ``"lzf"``) or None. An existing ``path`` is replaced only when
-    hyprog wrote it or with ``overwrite`` (:mod:`.ownership`). Returns the path written.
+    hyprog wrote it or with ``overwrite`` (:mod:`engine_model.runtime.ownership`). Returns the
+    path written.
     """
     path = Path(path)
     source = str(path)
@@ -397,7 +400,8 @@ def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
     _warn_dropped(list(table.columns), layout, source)
     _warn_if_t_lost(table, sample_rate(meta, DEFAULT_H5_RATE_HZ), source)
     var_names = {g: v for g, v, _ in H5_GROUPS}
-    with atomic_output(path, directory=False, overwrite=overwrite) as tmp:
+    with atomic_output(path, directory=False, overwrite=overwrite,
+                       ours=written_by_hyprog, want="a file") as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs[META_KEY] = metadata_json(meta, source)
             for group, names in layout.items():

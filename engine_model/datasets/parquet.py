@@ -8,13 +8,13 @@ not hold ``unit`` (the directory name does). Each part file carries the metadata
 sidecar. Columns keep the order they were written in, with ``unit`` first. Part files are
 zstd-compressed. :func:`read_parquet` also reads a single parquet file (``unit`` from a column,
 or from a ``unit=<n>`` parent directory). Files and directories whose name starts with ``.``
-or ``_`` are not read (a writer's temporaries, see :mod:`.atomic`).
+or ``_`` are not read (a writer's temporaries, see :mod:`engine_model.runtime.atomic`).
 
 Writers: :func:`write_parquet` (a whole table), :func:`parquet_unit_writer` (a stream of
 units, the directory appears when the last is written) and :func:`write_unit_part` (one unit
 added to an existing directory, for resumable writers; :func:`written_units` lists what is
 complete). An existing output is replaced only when hyprog wrote it, or with
-``overwrite=True`` (:mod:`.ownership`).
+``overwrite=True`` (:mod:`engine_model.runtime.ownership`).
 
 Rows of the user's file: ``read_parquet(..., source_rows=True)`` adds the column
 :data:`~.schema.SOURCE_ROW`, the 1-based row each sample has in the file it was read from (in
@@ -36,10 +36,17 @@ import pyarrow as pa
 import pyarrow.dataset as pds
 import pyarrow.parquet as pq
 
+from engine_model.runtime.atomic import (
+    atomic_output,
+    remove_path,
+    swap_into_place,
+    temporary_prefix,
+)
+
 from ..validation import InputError, check_columns
-from .atomic import atomic_output, remove_path, swap_into_place, temporary_prefix
 from .metadata import META_KEY, metadata_for_write, metadata_json, parse_metadata
 from .paths import PARQUET_MAGIC, existing_path, file_magic
+from .provenance import written_by_hyprog
 from .schema import (
     REQUIRED_COLUMNS,
     SOURCE_ROW,
@@ -82,8 +89,8 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
 
     Rows are sorted by unit, cycle, t; ``metadata`` is stored as JSON under the schema metadata
     key ``hyprog`` of every part file. The directory appears only when complete (see
-    :mod:`.atomic`); an existing ``path`` is replaced only when hyprog wrote it or with
-    ``overwrite`` (:mod:`.ownership`). Returns the path written.
+    :mod:`engine_model.runtime.atomic`); an existing ``path`` is replaced only when hyprog wrote it
+    or with ``overwrite`` (:mod:`engine_model.runtime.ownership`). Returns the path written.
     """
     path = Path(path)
     source = str(path)
@@ -91,7 +98,8 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     units = table["unit"].to_numpy()
     body = table.drop(columns="unit")
-    with atomic_output(path, directory=True, overwrite=overwrite) as tmp:
+    with atomic_output(path, directory=True, overwrite=overwrite,
+                       ours=written_by_hyprog, want="a parquet directory") as tmp:
         for unit, rows in _unit_slices(units):
             _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
     return path
@@ -109,13 +117,14 @@ def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | N
 
     The directory appears only when the block completes; on any error nothing is left.
     ``metadata`` is fixed when the writer opens (it goes into every part file). An existing
-    ``path`` is checked when the writer opens (:mod:`.ownership`).
+    ``path`` is checked when the writer opens (:mod:`engine_model.runtime.ownership`).
     """
     path = Path(path)
     source = str(path)
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     written: set[int] = set()
-    with atomic_output(path, directory=True, overwrite=overwrite) as tmp:
+    with atomic_output(path, directory=True, overwrite=overwrite,
+                       ours=written_by_hyprog, want="a parquet directory") as tmp:
         def write_unit(df: pd.DataFrame) -> None:
             table = prepare_for_write(df, source)
             units = table["unit"].to_numpy()

@@ -1,0 +1,518 @@
+"""Calibrate a whole fleet: units in parallel, on this machine or a Dask cluster, resumable.
+
+    from calibration.calibrate_fleet import calibrate_fleet
+    run = calibrate_fleet("data_samples/tiny", method="ukf", out="features", jobs=2)
+
+Units are independent, so they are spread over workers:
+
+- ``jobs=1`` (default) runs in this process with the process-wide model
+  (:func:`base.default_model`).
+- ``jobs=J > 1`` starts ``J`` worker processes (``spawn``), each with its own single-threaded
+  compiled model (loaded from the disk cache, about 2 s).
+- ``scheduler="tcp://host:8786"`` (or a ``distributed.Client``) sends the work to a Dask
+  cluster; the workers must be able to import hyprog and, when ``data`` is a path, read it
+  (a shared file system). Without a cluster, ``scheduler="local"`` starts a
+  ``distributed.LocalCluster`` of ``jobs`` single-threaded worker processes.
+
+Effects. ``effects`` (specification strings such as ``"customer_bleed:f0=0.02"`` or
+:class:`engine_model.physics.effects.Effect` instances) are switched on in the engine model that
+every unit is calibrated with, their parameters held at the given values (theta alone is estimated):
+what ``hyprog discover`` found, put back into the model (``hyprog pipeline --augment``). Each
+worker builds that model variant once (:func:`worker_model`); the effects, as canonical
+specifications (:meth:`Effect.spec`), are part of the ``calibration`` metadata, so a resumed
+run with other effects is refused like one with other settings.
+
+Tasks. The random-walk filters (``ukf``, ``ekf``) run many units in lockstep in one process
+(:mod:`calibration.kalman`), so their units are split into one group per worker, balanced by
+samples (longest-processing-time first) and cut into tasks of at most
+:data:`LOCKSTEP_MAX_ROWS` samples; the windowed estimators (``mhe``, ``map_cycle``) get one
+unit per task, longest first. A worker reads only its units from ``data`` (partition pruning),
+so a large fleet is never shipped whole, and the client reads one unit at a time (the checks
+before the work); memory is bounded by the largest task, not by the fleet.
+
+Output (``out``): the paper's feature table, a parquet directory partitioned by unit in the
+layout of :mod:`engine_model.datasets`, one unit written atomically as soon as it is done
+(:func:`datasets.write_unit_part`: a unit is complete or absent, never an empty folder). The
+metadata of the input is kept and a ``calibration`` entry added (method, options, setup,
+hyprog version, and per unit the ``input`` it was computed from: rows, sensors used and the
+fingerprint of its rows, :mod:`calibration.fingerprint`).
+
+Safety of the output:
+
+- one writer per ``out`` (:func:`engine_model.runtime.output_lock`): a second run into the
+  same ``out`` is refused while the first runs; a lock left by a killed run is taken over;
+- ``out`` must be absent, empty or a feature table hyprog wrote (a raw dataset or a folder of
+  other files is refused);
+- resume: rerunning with the same ``out`` skips a unit only when *its own* stored metadata
+  matches this run: the settings (method, options, setup) and the fingerprint of the unit's
+  input rows; any difference is an error naming the unit and the setting or input that
+  differs;
+- only temporaries whose writer is gone are deleted
+  (:func:`engine_model.runtime.remove_stale_temporaries`).
+
+Before any work every unit to calibrate is read once and checked (:func:`series.prepare_unit`:
+columns, numbers, NaN, envelope, duplicated time stamps; :func:`unit_check.check_units`: the
+data against the model at theta = 0, units of measure), so bad input fails before anything
+is written. After estimating, :func:`unit_check.check_result` adds warnings (a channel the
+model cannot explain, theta_hat at a bound) to each unit's summary.
+
+Worker processes die with their parent (:func:`engine_model.runtime.cluster.watch_parent`): on Linux
+through ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, everywhere through a watchdog thread that ends
+the worker when its parent process is gone, so a SIGKILL of ``hyprog calibrate --jobs J``
+leaves no worker behind.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from engine_model import datasets, runtime
+from engine_model.validation import InputError
+
+from .base import estimator_class
+from .estimation_setup import CalibrationSetup
+from .fingerprint import input_record
+from .series import prepare_unit
+from .unit_check import check_result, check_units
+
+LOCKSTEP_METHODS = ("ukf", "ekf")
+#: Most samples in one lockstep task (two DS02 units at 0.1 Hz, 80,000-130,000 samples each):
+#: what a task holds in memory is bounded whatever the fleet's size (measured: peak RSS about
+#: 1 GB for tasks of about 217,000 samples, and flat from task to task). A unit's estimate does
+#: not depend on the units it runs beside (the pipeline's jobs / Dask tests compare files byte
+#: for byte), so the cut changes no number.
+LOCKSTEP_MAX_ROWS = 250_000
+
+
+@dataclass
+class FleetRun:
+    """What :func:`calibrate_fleet` did. ``results``: unit -> :class:`CalibrationResult`
+    (only when ``keep_results``); ``units``: unit -> summary dict (samples, seconds,
+    non-converged, unobservable, warnings); ``skipped``: units already in ``out``;
+    ``sensors``: the measured channels used; ``warnings``: every unit's warnings;
+    ``effects``: the effects in the model (canonical specifications)."""
+
+    method: str
+    setup: CalibrationSetup
+    options: dict
+    results: dict = field(default_factory=dict)
+    features: dict = field(default_factory=dict)
+    units: dict = field(default_factory=dict)
+    skipped: list = field(default_factory=list)
+    seconds: float = 0.0
+    out: str | None = None
+    workers: int = 1
+    sensors: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    effects: list = field(default_factory=list)
+
+    @property
+    def samples(self) -> int:
+        return int(sum(u["samples"] for u in self.units.values()))
+
+    @property
+    def samples_per_second(self) -> float:
+        return self.samples / self.seconds if self.seconds > 0 else float("nan")
+
+
+# ----------------------------------------------------------------------------- planning
+def plan_tasks(lengths: dict, method: str, n_workers: int,
+               max_rows: int | None = None) -> list[list]:
+    """Units grouped into tasks (module docstring): balanced lockstep groups for the filters,
+    single units, longest first, for the windowed estimators. A lockstep group is cut into
+    tasks of at most ``max_rows`` samples [:data:`LOCKSTEP_MAX_ROWS`] (at least one unit each),
+    so that a task's memory does not grow with the fleet."""
+    max_rows = LOCKSTEP_MAX_ROWS if max_rows is None else max_rows
+    order = sorted(lengths, key=lambda u: (-lengths[u], u))
+    if method not in LOCKSTEP_METHODS:
+        return [[u] for u in order]
+    n = max(1, min(n_workers, len(order)))
+    groups: list[list] = [[] for _ in range(n)]
+    load = np.zeros(n)
+    for u in order:
+        j = int(np.argmin(load))
+        groups[j].append(u)
+        load[j] += lengths[u]
+    tasks = []
+    for g in groups:
+        task, rows = [], 0
+        for u in g:
+            if task and rows + lengths[u] > max_rows:
+                tasks.append(task)
+                task, rows = [], 0
+            task.append(u)
+            rows += lengths[u]
+        if task:
+            tasks.append(task)
+    return tasks
+
+
+def setup_dict(setup: CalibrationSetup) -> dict:
+    d = asdict(setup)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+
+
+def effect_specs(effects) -> list[str]:
+    """``effects`` (specification strings or :class:`Effect` instances) as canonical
+    specification strings (bad specifications are an :class:`InputError`)."""
+    from engine_model.physics.effects import parse_effect_spec
+
+    out = []
+    for e in effects or ():
+        out.append(parse_effect_spec(e).spec() if isinstance(e, str) else e.spec())
+    return out
+
+
+# ----------------------------------------------------------------------------- workers
+def worker_model(threads: int | None, effects: Sequence[str] = ()):
+    """The compiled model of this process for ``effects`` (canonical specifications, held at
+    their values), built once per process (:func:`engine_model.runtime.cluster.process_model`): the
+    process-wide default model when there are no effects and ``threads`` is None, else a
+    ``threads``-threaded variant (single-threaded in a worker)."""
+    from engine_model.runtime.cluster import process_model
+
+    return process_model(effects, threads)
+
+
+def unit_frames(df: pd.DataFrame) -> dict[int, pd.DataFrame]:
+    """unit -> its rows, indexed by the 1-based rows of the user's file when ``df`` has
+    :data:`datasets.SOURCE_ROW` (so that errors name them), else 0..n-1."""
+    out = {}
+    for u, g in df.groupby("unit", sort=False):
+        if datasets.SOURCE_ROW in g.columns:
+            g = g.set_index(datasets.SOURCE_ROW)
+            g.index.name = None
+        else:
+            g = g.reset_index(drop=True)
+        out[int(u)] = g
+    return out
+
+
+def run_task(task: dict) -> list[tuple]:
+    """Calibrate one task's units (in a worker): returns ``[(unit, features, result)]``;
+    ``result.diagnostics["warnings"]`` holds :func:`unit_check.check_result`'s warnings."""
+    method, setup, options = task["method"], task["setup"], task["options"]
+    frames = task.get("frames")
+    if frames is None:
+        df, _ = datasets.read_dataset(task["path"], units=task["units"], source_rows=True)
+        by_unit = unit_frames(df)
+        frames = [by_unit[u] for u in task["units"]]
+    model = worker_model(task.get("threads"), task.get("effects", ()))
+    est = estimator_class(method)(model=model, **options)
+    results = est.estimate_many(frames, setup, task.get("source"))
+    out = []
+    for u, f, r in zip(task["units"], frames, results, strict=True):
+        series = prepare_unit(f, setup, task.get("source"))
+        r.diagnostics["warnings"] = check_result(r, series, setup)
+        out.append((u, r.to_features(f), r))
+    return out
+
+
+# ----------------------------------------------------------------------------- executors
+class _Serial:
+    def __init__(self, threads=None):
+        self.threads = threads
+
+    def run(self, tasks):
+        for t in tasks:
+            yield run_task(t)
+
+    def close(self):
+        pass
+
+    def abort(self):
+        pass
+
+
+class _Processes:
+    """Tasks on ``jobs`` worker processes that die with this one
+    (:class:`engine_model.runtime.cluster.ProcessPool`)."""
+
+    def __init__(self, jobs):
+        from engine_model.runtime.cluster import ProcessPool
+
+        self.pool = ProcessPool(jobs)
+
+    def run(self, tasks):
+        yield from self.pool.map(run_task, tasks)
+
+    def close(self):
+        self.pool.close()
+
+    def abort(self):
+        self.pool.abort()
+
+
+class _Dask:
+    """Tasks on a Dask cluster (:func:`engine_model.runtime.cluster.connect`)."""
+
+    def __init__(self, scheduler, jobs):
+        from engine_model.runtime.cluster import connect
+
+        self.cluster = connect(scheduler, jobs)
+        self.n_workers = self.cluster.n_workers
+
+    def run(self, tasks):
+        yield from self.cluster.map(run_task, tasks)
+
+    def close(self):
+        self.cluster.close()
+
+    def abort(self):
+        self.close()
+
+
+# ----------------------------------------------------------------------------- driver
+def _flat(d, prefix="") -> dict:
+    """``{"setup": {"noise_scale": 1}}`` -> ``{"setup.noise_scale": 1}``."""
+    out = {}
+    for k, v in (d or {}).items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _first_difference(stored: dict, now: dict) -> str | None:
+    """The first setting that differs between two calibration entries, in words."""
+    a, b = _flat(stored), _flat(now)
+    for k in sorted(set(a) | set(b)):
+        if k in ("hyprog_version",) or k.startswith("input."):
+            continue
+        if a.get(k) != b.get(k):
+            return f"{k} is {a.get(k)!r} there, {b.get(k)!r} now"
+    return None
+
+
+def check_output_dir(out: Path) -> None:
+    """``out`` is absent, empty or a feature table hyprog wrote (module docstring)."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(f"{out}: exists and is not a directory; choose another output")
+    if not any(p for p in out.iterdir() if not p.name.startswith(".")):
+        return
+    if not datasets.written_by_hyprog(out):
+        raise InputError(f"{out}: exists and holds files hyprog did not write; choose another"
+                         " output (a feature table is written into a new or empty directory)")
+    if "calibration" not in datasets.read_metadata(out):
+        raise InputError(f"{out}: holds a dataset, not a feature table (its metadata has no"
+                         " 'calibration' entry); choose another output")
+
+
+def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | None) -> None:
+    """The stored unit ``unit`` of ``out`` was computed with these settings and, unless
+    ``record`` is None (a unit this run does not calibrate), from this input (its own
+    metadata, not the first file's); InputError naming what differs."""
+    part = out / f"unit={unit}" / datasets.PARQUET_PART
+    stored = datasets.read_metadata(part).get("calibration") or {}
+    diff = _first_difference({k: v for k, v in stored.items() if k != "input"},
+                             {k: v for k, v in calib_meta.items() if k != "input"})
+    if diff is not None:
+        raise InputError(f"{out}: unit {unit} was calibrated with other settings ({diff});"
+                         " choose another output or delete it")
+    if record is None:
+        return
+    old = stored.get("input") or {}
+    if old.get("sha256") != record["sha256"]:
+        what = (f"{old.get('rows')} rows there, {record['rows']} now"
+                if old.get("rows") != record["rows"] else "the same number of rows, other"
+                " values")
+        if not old:
+            what = "no fingerprint of its input is stored (an older hyprog wrote it)"
+        raise InputError(f"{out}: unit {unit} was calibrated from other input data ({what});"
+                         " choose another output or delete it")
+    if old.get("sensors") != record["sensors"]:
+        raise InputError(f"{out}: unit {unit} was calibrated from sensors"
+                         f" {', '.join(old.get('sensors') or [])}, now"
+                         f" {', '.join(record['sensors'])}; choose another output or delete it")
+
+
+def dataset_units(data, units: Sequence[int] | None = None) -> list[int]:
+    """The units of the dataset ``data`` (those of ``units`` when given), without reading the
+    fleet: a parquet directory by unit lists them in its partition names (and their row
+    counts in the part files' footers); other layouts, or a partition without rows, are read
+    for their keys only (so the reader's error names it). A unit that is not there is an
+    InputError naming it."""
+    import pyarrow.parquet as pq
+
+    p = Path(data)
+    parts = datasets.written_units(p) if p.is_dir() else []
+    if parts and (units is None or set(units) <= set(parts)):
+        chosen = sorted(parts if units is None else {int(u) for u in units})
+        try:
+            empty = [u for u in chosen if pq.read_metadata(
+                p / f"unit={u}" / datasets.PARQUET_PART).num_rows == 0]
+        except (OSError, ValueError):  # pyarrow's ArrowInvalid is a ValueError
+            empty = chosen  # not readable as parquet: the reader says why
+        if not empty:
+            return chosen
+    keys = datasets.read_dataset(data, units=units, columns=[])[0]
+    return sorted(int(u) for u in keys["unit"].unique())
+
+
+def _units_of(data, df_all, lengths):
+    """Yield ``(unit, frame)`` one unit at a time (a path is read unit by unit, with the rows
+    of the user's file as the index)."""
+    if df_all is not None:
+        for u, f in unit_frames(df_all).items():
+            yield u, f
+        return
+    for u in sorted(lengths):
+        df, _ = datasets.read_dataset(data, units=[u], source_rows=True)
+        yield u, unit_frames(df)[u]
+
+
+def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = None,
+                    options: dict | None = None, units: Sequence[int] | None = None,
+                    jobs: int = 1, scheduler=None, out=None, keep_results: bool = True,
+                    progress: Callable[[int, int], None] | None = None,
+                    check_data: bool = True, effects: Sequence = ()) -> FleetRun:
+    """Calibrate every unit of ``data`` (a dataset path, or a DataFrame with a ``unit``
+    column) with ``method`` (module docstring). ``options`` go to the estimator's constructor;
+    ``progress(done_units, total_units)`` is called as units finish. ``check_data`` compares
+    every unit with the model before estimating (:func:`unit_check.check_units`).
+    ``effects``: effects switched on in the model, held at their values (module
+    docstring)."""
+    setup = setup or CalibrationSetup()
+    options = dict(options or {})
+    estimator_class(method)  # unknown method: clear error before any work
+    specs = effect_specs(effects)  # a bad specification: clear error before any work
+    if jobs < 1:
+        raise InputError(f"jobs must be >= 1, got {jobs}")
+    t0 = time.perf_counter()
+    source = None
+    if isinstance(data, pd.DataFrame):
+        df_all, meta = data, {}
+        if "unit" not in df_all.columns:
+            raise InputError("data: a 'unit' column is needed to calibrate a fleet")
+        if units is not None:
+            missing = sorted(set(units) - set(df_all["unit"].unique()))
+            if missing:
+                raise InputError(f"data: unit(s) {missing} not found")
+            df_all = df_all[df_all["unit"].isin(units)]
+        lengths = df_all.groupby("unit").size().to_dict()
+    else:
+        source = str(data)
+        meta = datasets.read_metadata(data)
+        lengths = dict.fromkeys(dataset_units(data, units))  # rows: counted by check_inputs
+        df_all = None
+    lengths = {int(u): n for u, n in lengths.items()}
+    setup = setup.for_dataset(meta)  # e.g. C-MAPSS's Ps30 out of the default sensors
+    if not lengths:
+        raise InputError(f"{source or 'data'}: no rows to calibrate")
+
+    calib_meta = {"method": method, "options": options, "setup": setup_dict(setup),
+                  "hyprog_version": datasets.hyprog_version()}
+    if specs:  # absent without effects: tables written before effects existed still resume
+        calib_meta["effects"] = specs
+    run = FleetRun(method=method, setup=setup, options=options,
+                   out=None if out is None else str(out), effects=specs)
+    records = check_inputs(data, df_all, lengths, setup, source, check_data, specs)
+    lengths = {u: records[u]["rows"] for u in lengths}
+    run.sensors = list(records[min(records)]["sensors"])
+    if out is None:
+        return _calibrate(run, source, df_all, meta, calib_meta, lengths, records, None, jobs,
+                          scheduler, keep_results, progress, t0)
+    out = Path(out)
+    check_output_dir(out)
+    with runtime.output_lock(out):
+        check_output_dir(out)  # again, now that no other writer can change it
+        runtime.remove_stale_temporaries(out)
+        done_before = set(datasets.written_units(out))
+        for u in sorted(done_before):  # the folder holds one set of settings (and input)
+            check_resume_unit(out, u, calib_meta, records.get(u))
+        run.skipped = sorted(done_before & set(lengths))
+        todo = {u: n for u, n in lengths.items() if u not in done_before}
+        return _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs,
+                          scheduler, keep_results, progress, t0)
+
+
+def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
+                 check_data: bool = True, effects: Sequence[str] = ()) -> dict[int, dict]:
+    """Read and check every unit once, before any output is touched (module docstring):
+    :func:`series.prepare_unit` and, with ``check_data``, :func:`unit_check.check_units`
+    (against the model with ``effects``). Returns unit -> its input record
+    (:func:`fingerprint.input_record`)."""
+    records, model = {}, None
+    for u, frame in _units_of(data, df_all, lengths):
+        series = prepare_unit(frame, setup, source)  # bad input: an error before any work
+        records[u] = input_record(frame, u, series.sensors)
+        if check_data:
+            if model is None:
+                model = worker_model(None, effects)
+            check_units(model, series, setup, source)
+    return records
+
+
+def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, scheduler,
+               keep_results, progress, t0) -> FleetRun:
+    """Estimate the units of ``todo`` and write each to ``out`` as it is done."""
+    setup, method, options = run.setup, run.method, run.options
+    if scheduler is not None:
+        ex = _Dask(scheduler, jobs)
+        n_workers, threads = ex.n_workers, 1
+    elif jobs > 1 and todo:
+        ex = _Processes(jobs)
+        n_workers, threads = jobs, 1
+    else:
+        ex = _Serial()
+        n_workers, threads = 1, None
+    run.workers = n_workers
+    tasks = []
+    for group in plan_tasks(todo, method, n_workers) if todo else []:
+        task = {"method": method, "setup": setup, "options": options, "units": group,
+                "threads": threads, "source": source, "effects": run.effects}
+        if df_all is None:
+            task["path"] = source
+        else:
+            frames = unit_frames(df_all[df_all["unit"].isin(group)])
+            task["frames"] = [frames[u] for u in group]
+        tasks.append(task)
+    done = 0
+    try:
+        for batch in ex.run(tasks):
+            for u, feats, res in batch:
+                if out is not None:
+                    unit_meta = {**meta, "calibration": {**calib_meta, "input": records[u]}}
+                    datasets.write_unit_part(feats, out, unit_meta)
+                if keep_results:
+                    run.results[u] = res
+                    run.features[u] = feats
+                d = res.diagnostics
+                warns = list(d.get("warnings", []))
+                run.units[u] = {"samples": len(feats), "seconds": float(d.get("seconds", 0)),
+                                "n_nonconverged": int(d.get("n_nonconverged", 0)),
+                                "unobservable": list(d.get("unobservable", [])),
+                                "sensors": records[u]["sensors"], "warnings": warns}
+                done += 1
+                if progress is not None:
+                    progress(done, len(todo))
+    except BaseException:
+        ex.abort()
+        raise
+    ex.close()
+    # in unit order, not in the order the workers finished: the same run reports the same
+    run.units = {u: run.units[u] for u in sorted(run.units)}
+    run.warnings = [w for rec in run.units.values() for w in rec["warnings"]]
+    run.seconds = time.perf_counter() - t0
+    return run
+
+
+def features_of(run: FleetRun) -> pd.DataFrame:
+    """The feature tables of a run kept in memory, concatenated by unit."""
+    if not run.features:
+        return pd.DataFrame()
+    return pd.concat([run.features[u] for u in sorted(run.features)], ignore_index=True)
+
+
+__all__ = ["FleetRun", "calibrate_fleet", "effect_specs", "features_of", "plan_tasks",
+           "run_task", "worker_model"]

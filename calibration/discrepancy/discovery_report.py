@@ -1,0 +1,251 @@
+"""The before/after report of :func:`loop.discover`: ``discover.json``, ``discover.md`` and
+``residuals.png`` in one output directory, written atomically (a hidden temporary sibling
+``.<name>.tmp-<host>-<pid>-*`` moved into place; an existing directory is replaced only if it
+is an earlier report, recognised by its ``discover.json``; the temporaries a killed writer left
+are removed by the next one).
+
+The PNG shows, for each added effect (or, when something unknown remains, for the channel with
+the most structure), the whitened residual of the channel it changed most against the
+operating variable that residual follows most closely, before (the first null fit) and after
+(the final model), with bin means.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from engine_model.runtime.atomic import (
+    default_mode,
+    remove_path,
+    remove_stale_temporaries_of,
+    swap_into_place,
+    temporary_prefix,
+)
+from engine_model.validation import InputError
+
+from .unknown import BASIS_NAMES, basis
+
+REPORT_JSON = "discover.json"
+DRIVERS = ("alt", "Mach", "TRA", "T2", "t_flight", "cycle")
+
+
+def _clean(o):
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_clean(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _clean(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def report_dict(d) -> dict:
+    return _clean(d.to_dict())
+
+
+def _fmt(v, nd=3):
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.{nd}g}"
+    return str(v)
+
+
+def _p(p) -> str:
+    return "< 1e-300" if p == 0 else _fmt(p)
+
+
+def markdown(d) -> str:
+    r = report_dict(d)
+    dg = r["diagnostics"]
+    lines = [f"# hyprog discover: {r['verdict']}", "",
+             f"{dg['samples']:,} samples of {len(dg['units'])} unit(s), sensors "
+             f"{', '.join(dg['sensors'])}; theta {', '.join(dg['params'])}; warm start "
+             f"{dg['method']}; family-wise alpha {dg['alpha']}; {dg['seconds']:.1f} s.", ""]
+    dr = r["drift"]
+    lines += [f"Drift of theta: q = {dr['q']:.3g} per sqrt(hour) ({dr['method']}).", ""]
+    ns = r["noise"]
+    flagged = [k for k, v in ns.get("channels", {}).items() if v["flagged"]]
+    if ns.get("note"):
+        lines += [f"Noise model: not checked ({ns['note']}); the documented sensor noise is "
+                  "used.", ""]
+    elif ns.get("checked"):
+        lines += ["Noise model: " + (", ".join(
+            f"{k} x{ns['channels'][k]['std_ratio']:.2f}" for k in flagged) + " rescaled"
+            if flagged else "consistent with the documented sensor noise on every channel")
+            + ".", ""]
+    if r["found"]:
+        lines += ["## Effects added", "", "| # | effect | parameters (95 % interval) | LR "
+                  "| p | share of excess | held-out SSE without -> with |", "|---|---|---|---|"
+                  "---|---|---|"]
+        for k, f in enumerate(r["found"], 1):
+            ps = "; ".join(f"{q} = {_fmt(v, 4)} ± {_fmt(f['std'][q], 2)} "
+                           f"[{_fmt(f['ci95'][q][0], 3)}, {_fmt(f['ci95'][q][1], 3)}]"
+                           for q, v in f["params"].items())
+            ho = f["held_out_sse"]
+            lines.append(f"| {k} | {f['name']} | {ps} | {_fmt(f['likelihood_ratio'])} | "
+                         f"{_p(f['p_value'])} | {_fmt(f['explained_share'], 2)} | "
+                         f"{_fmt(ho['without'], 5)} -> {_fmt(ho['with'], 5)} |")
+        lines.append("")
+    for a in r["ambiguous"]:
+        lines += [f"**Ambiguous: {a['candidates'][0]} or {a['candidates'][1]}** (projected "
+                  f"signatures correlated {a['correlation']:.3f}, log-likelihoods differ by "
+                  f"{abs(a['loglik_difference']):.2f}). Operating points that separate them:"]
+        for p in a["separating_points"]:
+            lines.append(f"- alt {p['alt_ft'][0]:.0f}-{p['alt_ft'][1]:.0f} ft, Mach "
+                         f"{p['Mach'][0]}-{p['Mach'][1]}, TRA {p['TRA'][0]:.0f}-"
+                         f"{p['TRA'][1]:.0f} % ({100 * p['share']:.0f} % of the difference)")
+        lines.append("")
+    if r["unknown"]:
+        lines += ["## Unknown effect", "", "Structure that no candidate explains, by channel "
+                  "(sparse regression of the residual on the operating variables):", ""]
+        for ch in r["unknown"]["channels"]:
+            h = r["unknown"]["hint"][ch]
+            terms = ", ".join(f"{t} ({c:+.2f})" for t, c in zip(h["terms"], h["coefficients"],
+                                                             strict=True)) or "(bias / "\
+                "correlation only)"
+            lines.append(f"- {ch} (residual RMSE {h['rmse']:.3g} noise std): {terms}; "
+                         f"explains {100 * h['explained']:.0f} % of its residual variance")
+        lines.append("")
+    if r["rejected"]:
+        lines += ["Candidates screened significant but not added:", ""]
+        lines += [f"- {x['name']}: {x['reason']}" for x in r["rejected"]]
+        lines.append("")
+    b, a = r["before"], r["after"]
+    lines += ["## Residual before and after", "", f"On {b['on']}; whitened (noise units): "
+              f"chi^2 per degree of freedom {_fmt(b['chi2_per_dof'])} -> "
+              f"{_fmt(a['chi2_per_dof'])}.", "",
+              "| channel | RMSE before | RMSE after | bias before | bias after | lag-1 before "
+              "| lag-1 after |", "|---|---|---|---|---|---|---|"]
+    for ch in b["channels"]:
+        x, y = b["channels"][ch], a["channels"][ch]
+        lines.append(f"| {ch} | {_fmt(x['rmse'])} | {_fmt(y['rmse'])} | {_fmt(x['bias'])} | "
+                     f"{_fmt(y['bias'])} | {_fmt(x['lag1'])} | {_fmt(y['lag1'])} |")
+    lines.append("")
+    if r["theta_error"]:
+        lines += ["## theta_hat against the truth (per cycle)", "",
+                  "| parameter | bias before | bias after | RMSE before | RMSE after |",
+                  "|---|---|---|---|---|"]
+        for q, x in r["theta_error"]["before"].items():
+            y = r["theta_error"]["after"][q]
+            lines.append(f"| {q} | {x['bias']:.2e} | {y['bias']:.2e} | {x['rmse']:.2e} | "
+                         f"{y['rmse']:.2e} |")
+        lines.append("")
+    last = r["screens"][-1] if r["screens"] else None
+    if last:
+        lines += [f"## Last screen (iteration {last['iteration']}, family-wise critical p = "
+                  f"{last['p_crit']:.2e})", "", "| candidate | statistic | df | p | projected"
+                  " / whole signature | min. detectable size |", "|---|---|---|---|---|---|"]
+        for c in last["candidates"][:12]:
+            md = ", ".join(f"{q} {_fmt(v, 2)}" for q, v in zip(c["params"],
+                                                                c["min_detectable"],
+                                                                strict=True))
+            rt = ", ".join(_fmt(v, 2) for v in c["ratio"])
+            lines.append(f"| {c['name']}{' (absorbed by theta)' if c['absorbed'] else ''} | "
+                         f"{_fmt(c['statistic'])} | {c['df']} | {_p(c['p_value'])} | {rt} | "
+                         f"{md} |")
+        lines.append("")
+    lines.append("Figure: residuals.png (residual against its driving variable, before and "
+                 "after).")
+    return "\n".join(lines) + "\n"
+
+
+def _panels(d) -> list[tuple[str, str]]:
+    """(channel, title) per panel: each added effect's most reduced channel, else the channel
+    with the most unexplained structure, else the worst channel."""
+    out = []
+    for f in d.found:
+        drop = {c: f["residual_before"][c] - f["residual_after"][c] for c in f["residual_before"]}
+        out.append((max(drop, key=drop.get), f"added {f['name']}"))
+    if d.unknown:
+        hint = d.unknown["hint"]
+        ch = max(hint, key=lambda c: hint[c]["explained"])
+        out.append((ch, "unknown effect"))
+    if not out:
+        ch = max(d.before["channels"], key=lambda c: d.before["channels"][c]["rmse"] or 0.0)
+        out.append((ch, "largest residual"))
+    return out[:4]
+
+
+def plot(d, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    problem, before, after = d.plots["problem"], d.plots["before"], d.plots["after"]
+    sensors = list(problem.sensors)
+    panels = _panels(d)
+    X = np.vstack([basis(u.series.w, u.frame["t"].to_numpy(float) if "t" in u.frame else None,
+                         u.cyc, u.cycle) for u in problem.units])
+    ok = np.concatenate([a & b for a, b in zip(before.lin.ok, after.lin.ok, strict=True)])
+    eb = np.vstack(before.lin.e)[ok]
+    ea = np.vstack(after.lin.e)[ok]
+    X = X[ok]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.0), squeeze=False)
+    for ax, (ch, title) in zip(axes[0], panels, strict=True):
+        j = sensors.index(ch)
+        cols = [BASIS_NAMES.index(v) for v in DRIVERS]
+        corr = [abs(np.corrcoef(X[:, c], eb[:, j])[0, 1]) if X[:, c].std() > 0 else 0.0
+                for c in cols]
+        c = cols[int(np.nanargmax(corr))]
+        xv = X[:, c]
+        ax.scatter(xv, eb[:, j], s=2, color="0.6", alpha=0.4, label="before", rasterized=True)
+        ax.scatter(xv, ea[:, j], s=2, color="tab:blue", alpha=0.4, label="after",
+                   rasterized=True)
+        edges = np.unique(np.quantile(xv, np.linspace(0, 1, 13)))
+        if len(edges) > 2:
+            idx = np.clip(np.searchsorted(edges, xv, side="right") - 1, 0, len(edges) - 2)
+            mid = 0.5 * (edges[1:] + edges[:-1])
+            for e, col in ((eb[:, j], "black"), (ea[:, j], "tab:blue")):
+                mb = np.array([e[idx == i].mean() if np.any(idx == i) else np.nan
+                               for i in range(len(mid))])
+                ax.plot(mid, mb, color=col, lw=2)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xlabel(BASIS_NAMES[c])
+        ax.set_ylabel(f"{ch} residual [noise std]")
+        ax.set_title(f"{ch}: {title}")
+        ax.legend(loc="best", markerscale=4, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def check_report_target(out: str | Path) -> Path:
+    """``out`` may receive a report: it does not exist, or it is an earlier report (which
+    :func:`write_report` replaces). Call it before the discovery run so that a bad ``--out``
+    fails first, not after minutes."""
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or not (out / REPORT_JSON).is_file()):
+        raise InputError(f"{out}: exists and is not an earlier discover report; choose "
+                         "another --out")
+    return out
+
+
+def write_report(d, out: str | Path) -> Path:
+    """Write ``discover.json``, ``discover.md`` and ``residuals.png`` into ``out``: built in a
+    hidden temporary sibling and moved into place (:mod:`engine_model.runtime.atomic`)."""
+    import tempfile
+
+    out = check_report_target(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries_of(out)
+    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), dir=out.parent))
+    try:
+        (tmp / REPORT_JSON).write_text(json.dumps(report_dict(d), indent=2, allow_nan=False))
+        (tmp / "discover.md").write_text(markdown(d))
+        plot(d, tmp / "residuals.png")
+        tmp.chmod(default_mode(directory=True))
+        swap_into_place(tmp, out)
+    except BaseException:
+        remove_path(tmp)
+        raise
+    return out

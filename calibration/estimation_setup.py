@@ -1,0 +1,244 @@
+"""What to estimate, from which channels, under which noise and drift model.
+
+State-space model shared by all (paper eq. 5-6)::
+
+    theta_k = theta_{k-1} + xi_k,        xi_k  ~ N(0, Q_k),   Q_k = q^2 dtau_k I
+    y_k     = F(w_k, theta_k) + eps_k,   eps_k ~ N(0, R_k),   R_k = diag(s sigma_rel |y_k|)^2
+
+- ``F`` is the exact steady-state model (:class:`engine_model.EngineModel`, or any
+  :class:`engine_model.solver.interface.SteadyStateModel`), ``y`` the chosen measured channels.
+- ``R_k``: the sensor noise of :mod:`engine_model.simulator.sensor_noise` (proportional to
+  the reading; ``s = noise_scale``), evaluated at the measured reading (the difference to the
+  noise-free reading is a fraction of a percent of sigma).
+- ``Q_k``: a random walk in **operating time**, ``dtau_k`` [h] of operation before sample
+  ``k``; ``q = drift_std_per_sqrt_h``. Where the drift goes (``drift_per``):
+
+  * ``"cycle"`` (default when the data have a ``cycle`` column): theta is constant within a
+    flight and the wear of a whole flight enters at the first sample of the next cycle,
+    ``dtau`` = the recorded duration of the previous cycle (0 within a cycle). This is how
+    N-CMAPSS and our simulator define theta (one value per cycle), so it is the exact prior.
+  * ``"time"`` (default without ``cycle``): continuous wear, ``dtau`` = the time since the
+    previous sample of the same flight (``t`` column); one sample period across a flight
+    boundary or without ``t``.
+
+  Default ``q`` = 1e-3 per sqrt(hour). In the ``ds02`` preset the abnormal HPT wear is
+  steepest just before end of life, about 0.05-0.1 % of efficiency per flight of 2-5 h
+  (:mod:`engine_model.simulator.degradation`: about 3 % lost over 50-70 cycles along
+  ``exp(u) - 1 - u``), i.e. below 1 ``q sqrt(flight hours)``; normal wear (1e-4 per cycle) is
+  far inside it. Data that degrade faster (the ``tiny`` preset: 10-cycle lives) need a
+  larger ``q``.
+- Prior at the first sample ``N(prior_mean, prior_std^2)``; default mean 0 (new engine), std
+  0.02 (ten times the simulator's initial wear, so the prior is weak but keeps an unobservable
+  direction bounded). Non-estimated parameters are held at ``theta_fixed`` (default 0).
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from engine_model.channels import PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from engine_model.validation import ENVELOPE, InputError
+
+N_THETA = len(THETA_NAMES)
+
+DEFAULT_DRIFT_STD_PER_SQRT_H = 1e-3
+DEFAULT_PRIOR_STD = 0.02
+DEFAULT_SAMPLE_PERIOD_S = 10.0  # 0.1 Hz, used only when the data have no ``t`` column
+
+
+def _vec(value, n, what) -> np.ndarray:
+    a = np.asarray(value, float)
+    if a.ndim == 0:
+        return np.full(n, float(a))
+    if a.shape != (n,):
+        raise InputError(f"{what}: expected one value or {n} values, got {a.size}")
+    return a.copy()
+
+
+KNOWN_COLUMNS = frozenset(("unit", "cycle", "t", "Fc", "hs", "RUL", "phi", *W_NAMES, *XS_NAMES,
+                           *XV_NAMES, *THETA_NAMES))
+
+
+def misspelt_channels(columns) -> list[tuple[str, str]]:
+    """``[(column, channel)]`` for each column that is not a known name but looks like a
+    measured channel that is absent: the same name in another case, or one character away
+    (``difflib`` ratio >= 0.6 with the same length), e.g. ``T3O`` -> ``T30``."""
+    cols = [str(c) for c in columns]
+    absent = [x for x in XS_NAMES if x not in cols]
+    out = []
+    for c in cols:
+        if c in KNOWN_COLUMNS or c.endswith(("_hat", "_std")):
+            continue
+        same_case = [x for x in absent if x.lower() == c.strip().lower()]
+        near = same_case or [x for x in difflib.get_close_matches(c, absent, n=1, cutoff=0.6)
+                             if len(x) == len(c)]
+        if near:
+            out.append((c, near[0]))
+    return out
+
+
+@dataclass(frozen=True)
+class CalibrationSetup:
+    """What to estimate from which channels, and the noise model (defaults in brackets).
+
+    ``params``      health parameters to estimate [the paper's HPT_eff_mod, LPT_eff_mod,
+                    LPT_flow_mod]; any subset of :data:`channels.THETA_NAMES`
+    ``sensors``     measured channels to use [None: every x_s channel present in the data
+                    except ``exclude_sensors``]
+    ``exclude_sensors`` channels left out of the default set: a dataset's metadata names
+                    those that do not follow their stated definition (``not_physical`` of
+                    a C-MAPSS import: its ``Ps30``) [()]
+    ``noise_scale`` multiplier of the documented sensor noise in ``R`` [1]
+    ``drift_std_per_sqrt_h``  random-walk std of theta per sqrt(hour of operation) [1e-3]
+    ``prior_mean``  prior mean of the estimated theta at the first sample, one value or one
+                    per parameter [0]
+    ``prior_std``   prior std, one value or one per parameter [0.02]
+    ``theta_fixed`` values of the non-estimated theta (name -> value) [all 0]
+    ``bounds``      box on every estimated theta [the model's envelope, (-0.15, 0.05)]
+    ``sample_period_s`` sample period when the data have no ``t`` column [10 s]
+    ``drift_per``   ``"cycle"``, ``"time"`` or ``"auto"`` (module docstring) ["auto"]
+    ``unobservable`` ``"exclude"`` or ``"raise"`` (module docstring) ["exclude"]
+    ``observability_rtol`` / ``observability_max_std`` / ``observability_samples``
+                    the rank test of the Fisher information [1e-8 / 0.02 / 400]
+    """
+
+    params: tuple = PAPER_THETA
+    sensors: tuple | None = None
+    exclude_sensors: tuple = ()
+    noise_scale: float = 1.0
+    drift_std_per_sqrt_h: float = DEFAULT_DRIFT_STD_PER_SQRT_H
+    prior_mean: float | tuple = 0.0
+    prior_std: float | tuple = DEFAULT_PRIOR_STD
+    theta_fixed: tuple = ()
+    bounds: tuple = ENVELOPE.theta
+    sample_period_s: float = DEFAULT_SAMPLE_PERIOD_S
+    drift_per: str = "auto"
+    unobservable: str = "exclude"
+    observability_rtol: float = 1e-8
+    observability_max_std: float = DEFAULT_PRIOR_STD
+    observability_samples: int = 400
+
+    def __post_init__(self):
+        params = (self.params,) if isinstance(self.params, str) else tuple(self.params)
+        object.__setattr__(self, "params", params)
+        if not params:
+            raise InputError("calibration: no health parameter to estimate")
+        bad = [q for q in params if q not in THETA_NAMES]
+        if bad:
+            raise InputError(f"unknown health parameter(s) {', '.join(bad)}; one of "
+                             f"{', '.join(THETA_NAMES)}")
+        if len(set(params)) != len(params):
+            raise InputError(f"health parameters listed twice: {', '.join(params)}")
+        if self.sensors is not None:
+            sensors = (self.sensors,) if isinstance(self.sensors, str) else tuple(self.sensors)
+            object.__setattr__(self, "sensors", sensors)
+            bad = [c for c in sensors if c not in XS_NAMES]
+            if bad:
+                raise InputError(f"unknown sensor(s) {', '.join(bad)}; measured channels are "
+                                 f"{', '.join(XS_NAMES)}")
+            if not sensors:
+                raise InputError("calibration: no sensor to use")
+        object.__setattr__(self, "exclude_sensors", tuple(self.exclude_sensors))
+        fixed = self.theta_fixed
+        if isinstance(fixed, Mapping):
+            fixed = tuple(sorted(fixed.items()))
+        fixed = tuple((str(k), float(v)) for k, v in fixed)
+        bad = [k for k, _ in fixed if k not in THETA_NAMES]
+        if bad:
+            raise InputError(f"theta_fixed: unknown health parameter(s) {', '.join(bad)}")
+        object.__setattr__(self, "theta_fixed", fixed)
+        for name in ("prior_mean", "prior_std"):
+            v = getattr(self, name)
+            if np.ndim(v):
+                object.__setattr__(self, name, tuple(float(x) for x in np.ravel(v)))
+        _vec(self.prior_mean, len(params), "prior_mean")
+        if np.any(_vec(self.prior_std, len(params), "prior_std") <= 0):
+            raise InputError("prior_std must be positive")
+        if not (self.noise_scale > 0):
+            raise InputError(f"noise_scale must be positive, got {self.noise_scale}")
+        if not (self.drift_std_per_sqrt_h >= 0):
+            raise InputError("drift_std_per_sqrt_h must be >= 0")
+        lo, hi = self.bounds
+        if not lo < hi:
+            raise InputError(f"bounds: lower {lo} must be below upper {hi}")
+        if self.drift_per not in ("auto", "cycle", "time"):
+            raise InputError(f"drift_per must be 'auto', 'cycle' or 'time', "
+                             f"got {self.drift_per!r}")
+        if self.unobservable not in ("exclude", "raise"):
+            raise InputError(f"unobservable policy must be 'exclude' or 'raise', "
+                             f"got {self.unobservable!r}")
+
+    # -- derived quantities
+    @property
+    def k(self) -> int:
+        return len(self.params)
+
+    @property
+    def param_index(self) -> np.ndarray:
+        """Positions of ``params`` in :data:`THETA_NAMES`."""
+        return np.array([THETA_NAMES.index(q) for q in self.params], int)
+
+    def prior_mean_vec(self) -> np.ndarray:
+        return _vec(self.prior_mean, self.k, "prior_mean")
+
+    def prior_std_vec(self) -> np.ndarray:
+        return _vec(self.prior_std, self.k, "prior_std")
+
+    def theta_base(self) -> np.ndarray:
+        """The full (10,) theta with the fixed values and the prior mean of the estimated."""
+        th = np.zeros(N_THETA)
+        for k, v in self.theta_fixed:
+            th[THETA_NAMES.index(k)] = v
+        th[self.param_index] = self.prior_mean_vec()
+        return th
+
+    def full_theta(self, theta_est: np.ndarray, index=None) -> np.ndarray:
+        """(..., k) estimated values -> (..., 10) full theta: :meth:`theta_base` with the
+        values put at ``index`` (positions in THETA_NAMES; default :attr:`param_index`, or a
+        subset of it when only the observable parameters are estimated)."""
+        theta_est = np.asarray(theta_est, float)
+        th = np.broadcast_to(self.theta_base(), (*theta_est.shape[:-1], N_THETA)).copy()
+        th[..., self.param_index if index is None else index] = theta_est
+        return th
+
+    def resolve_sensors(self, columns) -> tuple:
+        """The sensors to use for data with ``columns``: the requested ones (each must be
+        present) or every measured channel present. A column whose name looks like a misspelt
+        measured channel that is absent (``T3O`` for ``T30``, ``t30``) is an error with the
+        suggestion (:func:`misspelt_channels`)."""
+        typos = misspelt_channels(columns)
+        if typos:
+            raise InputError("; ".join(f"column {c!r} looks like a misspelt {x!r} (the"
+                                       f" measured channel {x} is absent); rename it"
+                                       for c, x in typos))
+        if self.sensors is None:
+            sensors = tuple(c for c in XS_NAMES
+                            if c in columns and c not in self.exclude_sensors)
+            if not sensors:
+                raise InputError(f"data: none of the measured channels {', '.join(XS_NAMES)}"
+                                 " is present" + (f" (left out: {', '.join(self.exclude_sensors)})"
+                                                  if self.exclude_sensors else ""))
+            return sensors
+        absent = [c for c in self.sensors if c not in columns]
+        if absent:
+            raise InputError(f"missing sensor column(s) {', '.join(absent)}")
+        return self.sensors
+
+    def for_dataset(self, meta: dict) -> CalibrationSetup:
+        """This setup for a dataset with metadata ``meta``: when no sensors were chosen, the
+        channels its ``not_physical`` entry names are added to :attr:`exclude_sensors`."""
+        extra = [c for c in (meta.get("not_physical") or {}) if c not in self.exclude_sensors]
+        if self.sensors is not None or not extra:
+            return self
+        return replace(self, exclude_sensors=(*self.exclude_sensors, *extra))
+
+    def with_params(self, params) -> CalibrationSetup:
+        """The same setup for a subset of its parameters (prior values carried over)."""
+        params = tuple(params)
+        pm, ps = self.prior_mean_vec(), self.prior_std_vec()
+        sel = [self.params.index(q) for q in params]
+        return replace(self, params=params, prior_mean=tuple(pm[sel]), prior_std=tuple(ps[sel]))

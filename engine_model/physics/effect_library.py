@@ -1,0 +1,389 @@
+"""The library of optional physical effects (the hooks: :mod:`engine_model.physics.effect_base`).
+
+Every effect is off by default: at its parameters' defaults it leaves every output unchanged.
+``hyprog effects`` lists them with their parameters, units, realistic sizes and signatures.
+Each parameter also has a documented *valid* range (``Param.valid``), wider than the realistic
+one: bleed at most 10 % of W25 (+-2 % per 10,000 ft), HP off-take at most 1 MW, Reynolds
+exponent 0-0.5 and flow ratio 0-2, intake losses up to 10 %, nozzle areas within +-20 %, a
+sensor gain within +-50 %, a gain drift within +-1 % per cycle, time constants 0-30 s (spool)
+and 0-3600 s (thermal). A value outside it is refused with the effect and parameter named
+before a model variant is compiled.
+
+=================  =====================================================================
+effect             physics
+=================  =====================================================================
+customer_bleed     air taken from the HPC exit for the aircraft (cabin, anti-ice):
+                   ``W = (f0 + f_alt alt/10,000 ft) W25``; typical airliner ECS demand is
+                   1-2 % of core flow at cruise (Walsh & Fletcher, *Gas Turbine
+                   Performance*, 2nd ed., ch. 5).
+hp_offtake         shaft power taken from the HP spool by the accessory gearbox
+                   (generators, hydraulic pumps), ``P`` [kW]; 100-250 kW for a twin of
+                   this class.
+reynolds           Reynolds-number effect on the turbomachinery at altitude. The Reynolds
+                   number index of a component, ``RNI = (P_in/P_in_des)
+                   (T_in/T_in_des)^-1.2`` (Re ~ rho U L / mu with U ~ sqrt(T) at constant
+                   corrected speed and mu ~ T^0.7), scales the loss: ``(1 - eta) = (1 -
+                   eta_RNI=1) RNI^-n`` (Wassell, ASME J. Eng. Power 90, 1968; Walsh &
+                   Fletcher ch. 4 give n = 0.1-0.2). The efficiency modifier changes by
+                   ``-(1/eta_des - 1)(RNI^-n - 1)`` and the flow modifier by ``flow_ratio``
+                   times that.
+inlet_loss         an extra intake total-pressure loss (damage, ice, a poor intake lip):
+                   ``P2 <- P2 (1 - dp - dp_ram Mach^2)``.
+nozzle_area        a change of the core (``dA8``) and bypass (``dA18``) nozzle throat areas,
+                   fractions (erosion, a mis-rigged variable nozzle, a trim).
+map_scaling        map adaptation of one component (option ``component``: fan, LPC, HPC,
+                   HPT, LPT): its efficiency and flow scalers vary with its corrected speed,
+                   ``d_eff = eff_1 dn + eff_2 dn^2`` and ``d_flow = flow_1 dn + flow_2 dn^2``
+                   with ``dn = n_corr - 1`` (``n_corr``: corrected speed relative to the SLS
+                   design point), added to the component's modifiers. A generic map scaled
+                   to the design point is right there and drifts away from the real
+                   component's towards part power; performance engineers correct it with
+                   scaling factors that depend on the operating point ("modification
+                   factors", Stamatis, Mathioudakis & Papailiou, ASME J. Eng. Gas Turbines
+                   Power 112, 1990; scaling factors along the operating line, Li & Pilidis,
+                   2010; Kurzke, ASME GT2011 on which shapes a map can physically take;
+                   polynomial map tuning, Tsoutsanis et al., Applied Energy 135, 2014). The
+                   constant term is left out: at the design speed the scaler is theta itself
+                   (the health parameter), so the effect is the shape, not the level.
+sensor_bias        a sensor offset and gain on one channel: ``x <- x (1 + gain) + offset``.
+sensor_drift       a sensor whose gain drifts with use: ``x <- x (1 + rate cycle)``; the
+                   flight ``cycle`` is a per-row context parameter.
+dynamics           (series) spool and thermal dynamics that the steady model lacks: the
+                   spool speeds, pressures and flows lag the steady state with the rotor
+                   time constant ``tau_spool`` and the temperatures with the heat-soak time
+                   constant ``tau_thermal`` (first-order lags integrated exactly for an
+                   input linear between samples).
+=================  =====================================================================
+
+Signatures
+----------
+``signature`` on each class is the documented sign of the change of key channels at the
+effect's realistic (``typical``) size at two points, ``SLS`` (sea-level static, ISA, TRA
+100) and ``CRZ`` (35,000 ft, Mach 0.8, TRA 80, ISA), at fixed TRA (the controller holds the
+corrected fan speed, so ``Nf`` does not move for the steady effects). The reasoning:
+
+- customer bleed / HP off-take: the HP turbine must drive the compressor while part of its
+  air (or power) leaves, so the burner runs hotter: ``Wf``, ``T40``, ``T48``, ``T50`` rise.
+- reynolds: only at altitude (RNI < 1) the components lose efficiency; at SLS nothing moves
+  (RNI = 1); at cruise the hot section runs hotter (``T48``, ``Wf`` up).
+- inlet_loss: ``P2`` falls, so every pressure downstream falls with it.
+- nozzle_area (a larger core nozzle): the LPT expands further, ``P50`` falls; ``T50`` falls.
+- map_scaling: at SLS full power the component runs at its design corrected speed (dn = 0)
+  and nothing moves; at cruise (TRA 80, dn < 0) a positive ``eff_1`` lowers the component's
+  efficiency, so the burner runs hotter (``T48``, ``T50``, ``Wf`` up) for an HPC, HPT or
+  LPT (the instance's ``moves`` and ``signature`` are per component).
+- sensor_bias / sensor_drift: only the chosen channel moves; every other output is unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine_model.channels import OUTPUT_NAMES
+
+from .effect_base import Effect, EffectSpecError, Param, register
+
+COMPONENT_MODS = ("fan", "LPC", "HPC", "HPT", "LPT")
+
+
+@register
+class CustomerBleed(Effect):
+    name = "customer_bleed"
+    description = ("Customer (aircraft) bleed from the HPC exit, a fraction of HPC inlet flow "
+                   "that may follow a schedule in altitude.")
+    params = (
+        Param("f0", "-", 0.0, "bleed fraction of W25 at sea level", 0.015, (0.0, 0.04),
+              valid=(0.0, 0.10)),
+        Param("f_alt", "1/(10,000 ft)", 0.0, "change of the fraction per 10,000 ft", 0.002,
+              (-0.005, 0.005), valid=(-0.02, 0.02)),
+    )
+    moves = ("Wf", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
+    signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
+                 "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
+
+    def apply(self, hook, value, p, ctx):
+        if hook != "W_customer_bleed":
+            return value
+        alt = ctx["w"][0]
+        return value + (p["f0"] + p["f_alt"] * alt / 1.0e4) * ctx["W25"]
+
+
+@register
+class HPOfftake(Effect):
+    name = "hp_offtake"
+    description = "Shaft power taken from the HP spool by the accessory gearbox."
+    params = (Param("P_kw", "kW", 0.0, "HP shaft power extraction", 150.0, (0.0, 400.0),
+                    valid=(0.0, 1000.0)),)
+    moves = ("Wf", "Nc", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
+    signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
+                 "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
+
+    def apply(self, hook, value, p, ctx):
+        if hook != "P_offtake_HP":
+            return value
+        return value + 1.0e3 * p["P_kw"]
+
+
+@register
+class Reynolds(Effect):
+    name = "reynolds"
+    description = ("Reynolds-number index effect on the efficiency and flow capacity of the "
+                   "fan, LPC, HPC, HPT and LPT (losses grow at altitude).")
+    params = (
+        Param("n", "-", 0.0, "loss exponent: (1 - eta) ~ RNI^-n", 0.05, (0.0, 0.2),
+              valid=(0.0, 0.5)),
+        Param("flow_ratio", "-", 0.5, "flow-capacity change / efficiency change", 0.5,
+              (0.0, 1.0), valid=(0.0, 2.0)),
+    )
+    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
+    signature = {"SLS": {"Wf": 0, "T48": 0, "T50": 0, "Nc": 0},
+                 "CRZ": {"Wf": +1, "T40": +1, "T48": +1}}
+
+    @staticmethod
+    def rni(T_in, P_in, T_in_des, P_in_des):
+        """Reynolds number index of a component inlet relative to its design point."""
+        return (P_in / P_in_des) * (T_in / T_in_des) ** -1.2
+
+    def apply(self, hook, value, p, ctx):
+        comp, _, kind = hook.partition("_")
+        if comp not in COMPONENT_MODS or kind not in ("eff_mod", "flow_mod"):
+            return value
+        rni = self.rni(ctx["T_in"], ctx["P_in"], ctx["T_in_des"], ctx["P_in_des"])
+        d_eff = -(1.0 / ctx["eta_des"] - 1.0) * (rni ** (-p["n"]) - 1.0)
+        return value + (d_eff if kind == "eff_mod" else p["flow_ratio"] * d_eff)
+
+
+@register
+class InletLoss(Effect):
+    name = "inlet_loss"
+    description = "Extra intake total-pressure loss, constant plus a ram part ~ Mach^2."
+    params = (
+        Param("dp", "-", 0.0, "fractional loss of P2 at Mach 0", 0.005, (0.0, 0.02),
+              valid=(0.0, 0.10)),
+        Param("dp_ram", "-", 0.0, "additional fractional loss per Mach^2", 0.005, (0.0, 0.02),
+              valid=(0.0, 0.10)),
+    )
+    moves = ("Wf", "T40", "T48", "T50", "P15", "P2", "P21", "P24", "Ps30", "P30", "P40", "P50")
+    signature = {"SLS": {"P2": -1, "P21": -1, "P30": -1, "P50": -1},
+                 "CRZ": {"P2": -1, "P21": -1, "P30": -1, "P50": -1}}
+
+    def apply(self, hook, value, p, ctx):
+        if hook != "P2":
+            return value
+        mach = ctx["w"][1]
+        return value * (1.0 - p["dp"] - p["dp_ram"] * mach**2)
+
+
+@register
+class NozzleArea(Effect):
+    name = "nozzle_area"
+    description = "Change of the core (A8) and bypass (A18) nozzle throat areas."
+    params = (
+        Param("dA8", "-", 0.0, "fractional change of the core nozzle throat area", 0.02,
+              (-0.05, 0.05), valid=(-0.2, 0.2)),
+        Param("dA18", "-", 0.0, "fractional change of the bypass nozzle throat area", 0.0,
+              (-0.05, 0.05), valid=(-0.2, 0.2)),
+    )
+    moves = ("Wf", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
+    signature = {"SLS": {"P50": -1, "T50": -1}, "CRZ": {"P50": -1, "T50": -1}}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == "A8":
+            return value * (1.0 + p["dA8"])
+        if hook == "A18":
+            return value * (1.0 + p["dA18"])
+        return value
+
+
+@register
+class MapScaling(Effect):
+    name = "map_scaling"
+    options = ("component",)
+    description = ("Map adaptation of one component (option component): efficiency and flow "
+                   "scalers that vary with its corrected speed, d = c1 (n_corr - 1) + "
+                   "c2 (n_corr - 1)^2.")
+    params = (
+        Param("eff_1", "-", 0.0, "efficiency scaler per unit of (n_corr - 1)", 0.05,
+              (-0.2, 0.2), valid=(-1.0, 1.0)),
+        Param("eff_2", "-", 0.0, "efficiency scaler per unit of (n_corr - 1)^2", 0.2,
+              (-1.0, 1.0), valid=(-5.0, 5.0)),
+        Param("flow_1", "-", 0.0, "flow scaler per unit of (n_corr - 1)", 0.05, (-0.2, 0.2),
+              valid=(-1.0, 1.0)),
+        Param("flow_2", "-", 0.0, "flow scaler per unit of (n_corr - 1)^2", 0.2, (-1.0, 1.0),
+              valid=(-5.0, 5.0)),
+    )
+    moves = ("<component>",)  # per instance: MOVES[component]
+    signature = {"SLS": {}, "CRZ": {}}
+    # every parameter at its typical size: the measured channels that move by more than
+    # 0.1 % at CRZ (n_corr below 1; tests/test_effects.py checks them) and the signs at CRZ.
+    # The LPT runs at nearly its design corrected speed at CRZ (T49 falls with T2), so it
+    # moves nothing there; its shape shows at part power.
+    MOVES = {
+        "fan": ("Wf", "T48", "P15", "P21", "Ps30", "P30", "P40", "P50"),
+        "LPC": ("P24",),
+        "HPC": ("Wf", "T30", "T40", "T48", "T50", "P24"),
+        "HPT": (),
+        "LPT": (),
+    }
+    SIGNS = {"fan": {"Wf": -1, "P15": -1, "P30": -1},
+             "LPC": {"P24": -1, "T24": -1},
+             "HPC": {"Wf": +1, "T30": +1, "T48": +1, "T50": +1},
+             "HPT": {"Wf": +1, "T48": +1, "T50": +1},
+             "LPT": {}}
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        comp = self.opts.get("component")
+        if comp is None:
+            raise EffectSpecError("effect map_scaling: option 'component' is required (e.g. "
+                                  "map_scaling:component=HPC,eff_1=0.05)")
+        if comp not in COMPONENT_MODS:
+            raise EffectSpecError(f"effect map_scaling: unknown component {comp!r}; one of "
+                                  f"{', '.join(COMPONENT_MODS)}")
+        self.component = comp
+        self.name = f"map_scaling_{comp}"
+        self.moves = self.MOVES[comp]
+        self.signature = {"SLS": {}, "CRZ": dict(self.SIGNS[comp])}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == f"{self.component}_eff_mod":
+            dn = ctx["n_corr"] - 1.0
+            return value + p["eff_1"] * dn + p["eff_2"] * dn * dn
+        if hook == f"{self.component}_flow_mod":
+            dn = ctx["n_corr"] - 1.0
+            return value + p["flow_1"] * dn + p["flow_2"] * dn * dn
+        return value
+
+
+def _channel_option(effect: Effect) -> str:
+    ch = effect.opts.get("channel")
+    if ch is None:
+        raise EffectSpecError(f"effect {effect.registry_name}: option 'channel' is required "
+                              f"(e.g. {effect.registry_name}:channel=T48,...)")
+    if ch not in OUTPUT_NAMES:
+        raise EffectSpecError(f"effect {effect.registry_name}: unknown channel {ch!r}; one of "
+                              f"{', '.join(OUTPUT_NAMES)}")
+    return ch
+
+
+class SensorEffect(Effect):
+    """Base of the effects on one sensor's reading (option ``channel``): the steady state is
+    untouched and only the hooked reading ``sensor:<channel>`` is rewritten by
+    :meth:`reading`; subclasses set ``name``, ``description``, ``params`` and ``reading``."""
+
+    options = ("channel",)
+    moves = ("<channel>",)
+    signature = {"SLS": {"<channel>": +1, "<others>": 0}, "CRZ": {"<channel>": +1,
+                                                                   "<others>": 0}}
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        self.channel = _channel_option(self)
+        self.name = f"{self.registry_name}_{self.channel}"
+
+    def apply(self, hook, value, p, ctx):
+        if hook != "sensor:" + self.channel:
+            return value
+        return self.reading(value, p)
+
+    def reading(self, value, p):
+        """The reading as the faulty sensor reports the true ``value``."""
+        raise TypeError(f"{type(self).__name__} must define reading()")
+
+
+@register
+class SensorBias(SensorEffect):
+    name = "sensor_bias"
+    description = "Offset and gain error of one sensor: x <- x (1 + gain) + offset."
+    params = (
+        Param("offset", "channel unit", 0.0, "additive offset", None, None),
+        Param("gain", "-", 0.0, "relative gain error", 0.005, (-0.02, 0.02),
+              valid=(-0.5, 0.5)),
+    )
+
+    def reading(self, value, p):
+        return value * (1.0 + p["gain"]) + p["offset"]
+
+
+@register
+class SensorDrift(SensorEffect):
+    name = "sensor_drift"
+    description = "A sensor gain that drifts with use: x <- x (1 + rate cycle)."
+    params = (
+        Param("rate", "1/cycle", 0.0, "relative gain change per flight cycle", 1e-4,
+              (-5e-4, 5e-4), valid=(-1e-2, 1e-2)),
+        Param("cycle", "cycle", 0.0, "flight cycle (context: supplied per row)", None, None,
+              kind="context"),
+    )
+
+    def reading(self, value, p):
+        return value * (1.0 + p["rate"] * p["cycle"])
+
+
+# channels that follow the spools (speeds, pressures, flows) and the temperatures
+_THERMAL = ("T24", "T30", "T40", "T48", "T50")
+
+
+@register
+class Dynamics(Effect):
+    name = "dynamics"
+    series = True
+    description = ("Spool and thermal dynamics: speeds, pressures and flows lag the steady "
+                   "state with the rotor time constant, temperatures with the heat-soak time "
+                   "constant (applied to each flight's output series).")
+    params = (
+        Param("tau_spool", "s", 0.0, "rotor (spool) time constant", 1.5, (0.5, 4.0),
+              valid=(0.0, 30.0)),
+        Param("tau_thermal", "s", 0.0, "heat-soak time constant of the temperatures", 60.0,
+              (10.0, 300.0), valid=(0.0, 3600.0)),
+    )
+    moves = ("Nf", "Nc", "Wf", "T24", "T30", "T40", "T48", "T50", "P30", "P50")
+    signature = {"SLS": {}, "CRZ": {}}  # a steady point is its own steady state
+
+    @staticmethod
+    def lag(y: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
+        """First-order lag ``tau dy/dt = u - y`` of the columns of ``u = y`` (steady values)
+        over times ``t`` [s], starting in equilibrium, integrated exactly for ``u`` linear
+        between samples."""
+        u = np.asarray(y, float)
+        if tau <= 0.0 or len(u) < 2:
+            return u.copy()
+        dt = np.diff(np.asarray(t, float))
+        a = np.exp(-dt / tau)
+        # over one step, with u linear from u0 to u1: y1 = a y0 + b0 u0 + b1 u1
+        b1 = 1.0 - tau / dt * (1.0 - a)
+        b0 = tau / dt * (1.0 - a) - a
+        if np.allclose(dt, dt[0]):  # uniform sampling: one linear filter per column
+            from scipy.signal import lfilter, lfiltic
+
+            num, den = [b1[0], b0[0]], [1.0, -a[0]]
+            out = np.empty_like(u)
+            for j in range(u.shape[1] if u.ndim == 2 else 1):
+                col = u[:, j] if u.ndim == 2 else u
+                zi = lfiltic(num, den, y=[col[0]], x=[col[0]])
+                res = lfilter(num, den, col, zi=zi)[0]
+                if u.ndim == 2:
+                    out[:, j] = res
+                else:
+                    out[:] = res
+            return out
+        out = np.empty_like(u)
+        out[0] = u[0]
+        for k in range(1, len(u)):
+            out[k] = a[k - 1] * out[k - 1] + b0[k - 1] * u[k - 1] + b1[k - 1] * u[k]
+        return out
+
+    def apply_series(self, df, values=None):
+        """``df``: one flight's outputs with a ``t`` column [s]; returns the lagged copy."""
+        v = {**self.values, **(values or {})}
+        out = df.copy()
+        t = df["t"].to_numpy(float)
+        if np.any(np.diff(t) <= 0):
+            raise ValueError("dynamics: the time column t must increase within a flight")
+        spool = [c for c in self.moves if c in df.columns and c not in _THERMAL]
+        thermal = [c for c in _THERMAL if c in df.columns]
+        if spool:
+            out[spool] = self.lag(df[spool].to_numpy(float), t, v["tau_spool"])
+        if thermal:
+            out[thermal] = self.lag(df[thermal].to_numpy(float), t, v["tau_thermal"])
+        return out

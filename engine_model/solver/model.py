@@ -1,0 +1,507 @@
+"""The engine model as a user sees it: ``F(w, theta, p) -> (x_s, x_v)`` on batches.
+
+>>> from engine_model import EngineModel
+>>> m = EngineModel()                       # builds, compiles (cached on disk) and tabulates
+>>> df = m.evaluate(pd.DataFrame({"alt": [0], "Mach": [0], "TRA": [100], "T2": [518.67]}))
+>>> df[["T30", "Wf", "converged"]]
+
+Steady state. The cycle of :mod:`turbofan` is a residual system ``r(x; w, theta, p) = 0`` in
+seven unknowns ``x`` (:data:`turbofan.UNKNOWN_NAMES`); ``p`` are the parameters of the optional
+effects (:mod:`effects`), a first-class input next to ``theta`` everywhere. A batch of points
+is solved by the damped Newton-chord iteration of :mod:`newton_driver` with the exact Jacobian
+``dr/dx`` (CasADi AD): compiled to C with the residual functions and run over the batch on
+OpenMP threads (``newton_batch.c``), or in numpy when the model is not compiled. A point that
+does not converge is returned with ``converged = False`` and NaN outputs, never as a valid
+number; a root outside the compressor maps' valid region (:meth:`EngineModel.valid_on_maps`)
+is not converged either.
+
+Retry (:meth:`EngineModel.solve_from`, the one place it is written): a point that failed from
+its given start is solved again from the tabulated starting guess, then by continuation from
+the design point (sea-level static, new engine) to its own ``w`` and ``theta``.
+
+Starting guesses come from :class:`guess_table.GuessTable` (demanded corrected fan speed,
+Mach, T2); a time series can instead be warm-started sample to sample
+(:meth:`EngineModel.solve_series`).
+
+Outputs, residuals and the exact sensitivities ``d(outputs)/d(theta, w, p)`` (implicit function
+theorem, :mod:`interface`) are evaluated at given unknowns by CasADi Functions compiled to C
+and mapped over the batch (:mod:`batch_eval`). :class:`EngineModel` satisfies
+:class:`interface.SymbolicSteadyStateModel`, the interface every estimator uses.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pandas as pd
+
+from engine_model.channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES
+from engine_model.physics import atmosphere
+from engine_model.physics.design import EngineDesign, design_engine
+from engine_model.physics.effects import EffectSet
+from engine_model.physics.turbofan import (
+    N_UNKNOWNS,
+    UNKNOWN_NAMES,
+    X_DESIGN,
+    cycle,
+    imperial_outputs,
+)
+from engine_model.units import T_STD_R, k_to_r
+from engine_model.validation import InputError, check_columns, check_theta, check_w
+
+from .batch_eval import BatchEvaluator
+from .codegen import cache_dir, compile_functions
+from .guess_table import GuessTable
+from .interface import Sensitivities
+from .newton_driver import CompiledNewton, JacobianStore, SolveResult, newton_chord_numpy
+
+N_THETA = len(THETA_NAMES)
+N_W = len(W_NAMES)
+CONTINUATION_STEPS = 20
+MAX_CONTINUATION_POINTS = 200  # per call; more failures than this are reported as they are
+
+
+@dataclass(frozen=True)
+class ResidualSystem:
+    """The steady state as equations, for optimisers that solve many points at once.
+
+    ``residual(x, w, theta, p)`` (7 scaled residuals) and ``outputs(x, w, theta, p)`` (every
+    channel of :data:`channels.OUTPUT_NAMES`, N-CMAPSS units) are CasADi Functions of the
+    unknowns ``x`` (names in ``unknown_names``), so that e.g. a moving-horizon estimator can
+    make ``x`` at every sample decision variables with ``residual == 0`` as constraints.
+    """
+
+    unknown_names: tuple
+    output_names: tuple
+    param_names: tuple
+    x_design: np.ndarray
+    residual: ca.Function
+    outputs: ca.Function
+    guess: object  # callable (w (N,4)) -> x0 (N,7)
+
+
+class EngineModel:
+    """Two-spool turbofan steady-state model with exact derivatives.
+
+    Parameters
+    ----------
+    design : EngineDesign, optional
+        Design point and maps; default :func:`design.design_engine()`.
+    effects : sequence of effects.Effect, optional
+        Optional physical effects built into the symbolic model; their parameters become the
+        vector ``p`` (names in :attr:`param_names`).
+    compiled : bool
+        Generate and compile C (cached on disk) for the hot path; otherwise CasADi's virtual
+        machine evaluates the same expression graph and the Newton iteration runs in numpy.
+    n_threads : int, optional
+        Threads for batch evaluation (default: all cores).
+    """
+
+    unknown_names = UNKNOWN_NAMES
+    output_names = OUTPUT_NAMES
+
+    def __init__(self, design: EngineDesign | None = None, effects=(), compiled: bool = True,
+                 n_threads: int | None = None):
+        self.design = design or design_engine()
+        self.effects = EffectSet(effects)
+        self.compiled = compiled
+        self.n_threads = max(1, n_threads or os.cpu_count() or 1)
+        self.param_names = self.effects.param_names
+        self.p_default = self.effects.defaults
+        self._build()
+        self._guess = self._load_or_build_table()
+
+    @property
+    def n_unknowns(self) -> int:
+        return N_UNKNOWNS
+
+    @property
+    def variant_key(self) -> str:
+        return self.effects.key
+
+    # ------------------------------------------------------------------ construction
+    def _build(self):
+        x = ca.SX.sym("x", N_UNKNOWNS)
+        w = ca.SX.sym("w", N_W)
+        th = ca.SX.sym("theta", N_THETA)
+        p = ca.SX.sym("p", len(self.param_names))
+        hook = self.effects.hook(p, w)
+        res, st = cycle(self.design, w, th, x, hook)
+        out = imperial_outputs(st, hook)
+        y = ca.vertcat(*[out[k] for k in OUTPUT_NAMES])
+        self.stations_expr = st
+        # the Newton Jacobian by reverse mode (one adjoint sweep per residual): 17 % fewer
+        # instructions than CasADi's default forward mode here, the same numbers
+        J = ca.densify(ca.jacobian(res, x, {"helper_options": {"ad_weight": 1.0}}))
+        # common subexpressions (the gas-property polynomials of one temperature, used by
+        # several stations) are evaluated once in the generated code
+        cse = {"cse": True}
+        f_res = ca.Function("hyprog_residual", [x, w, th, p], [res], cse)
+        f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y], cse)
+        f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
+        # exact sensitivities by the implicit function theorem (module docstring)
+        n_th, n_w = th.numel(), w.numel()
+        Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w),
+                                        ca.jacobian(res, p)))
+        dy_dx = ca.jacobian(y, x)
+        dth = ca.jacobian(y, th) - dy_dx @ Jinv_r[:, :n_th]
+        dw = ca.jacobian(y, w) - dy_dx @ Jinv_r[:, n_th:n_th + n_w]
+        sens_out = [dth, dw]
+        if p.numel():
+            sens_out.append(ca.jacobian(y, p) - dy_dx @ Jinv_r[:, n_th + n_w:])
+        f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out, cse)
+        # dx*/dtheta, used only to tabulate starting guesses
+        f_dxdth = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, :n_th]])
+        self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
+        self._symbolic = dict(residual=f_res, outputs=f_out, resjac=f_resjac, sens=f_sens,
+                              dxdth=f_dxdth)
+        if self.compiled:
+            name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
+            hot = compile_functions(
+                name + "_hot", [f_res, f_resjac], opt="-O3",
+                extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
+                extra_flags=(f"-DRES_FN={f_res.name()}", f"-DRESJAC_FN={f_resjac.name()}"),
+                optional_flags=("-fopenmp",))
+            self._newton_c = CompiledNewton(hot["__library__"])
+            cold = compile_functions(name + "_cold", [f_out, f_sens], opt="-O1")
+            fns = dict(residual=hot[f_res.name()], resjac=hot[f_resjac.name()],
+                       outputs=cold[f_out.name()], sens=cold[f_sens.name()], dxdth=f_dxdth)
+        else:
+            fns = dict(self._symbolic)
+            self._newton_c = None
+        self._eval = BatchEvaluator(fns, self.n_threads)
+
+    def _load_or_build_table(self) -> GuessTable:
+        """The starting-guess table, cached on disk next to the compiled code."""
+        if self.effects.effects:
+            # Effects at their default parameters change the steady state little, and the
+            # table is only a starting guess: share the base model's table (built or loaded
+            # once) instead of tabulating every combination of effects.
+            return EngineModel(self.design, compiled=self.compiled,
+                               n_threads=self.n_threads)._guess
+        key = GuessTable.cache_key(self._symbolic["residual"].serialize())
+        return GuessTable.load_or_build(cache_dir() / f"table_{key}.npz", self._build_table,
+                                        self.design.T40_des, self.design.nf_demand_pct,
+                                        self.design.spec.throttle.alt_flight_weight)
+
+    def _build_table(self) -> GuessTable:
+        return GuessTable.build(
+            solve_from=lambda w, th, x0, max_iter: self.solve_from(
+                w, th, x0, max_iter=max_iter, retry=False),
+            continuation=self._continuation, dx_dtheta=self._dx_dtheta,
+            tra_from_pct=self.design.tra_from_pct, n_theta=N_THETA,
+            t40_des_k=self.design.T40_des, nf_demand_pct=self.design.nf_demand_pct,
+            x_design=np.array(X_DESIGN, float),
+            flight_weight=self.design.spec.throttle.alt_flight_weight)
+
+    def _dx_dtheta(self, x, w, theta) -> np.ndarray:
+        n = len(x)
+        (d,) = self._eval("dxdth", x.T, w.T, theta.T, self.p_matrix(None, n).T)
+        return d.T.reshape(n, N_THETA, N_UNKNOWNS).transpose(0, 2, 1)
+
+    def _continuation(self, w_target, x_start, theta, steps=CONTINUATION_STEPS) -> SolveResult:
+        """Walk from sea-level static (theta = 0) to ``w_target``, ``theta`` in ``steps``
+        Newton solves: one point (``w_target`` (4,)) or a batch ((k, 4), each on its own path,
+        solved together); the result's ``iterations`` is the total over all steps."""
+        w_t = np.atleast_2d(np.asarray(w_target, float))
+        th = np.atleast_2d(np.asarray(theta, float))
+        x = np.broadcast_to(np.asarray(x_start, float), (len(w_t), N_UNKNOWNS)).copy()
+        w0 = np.array([0.0, 0.0, 100.0, T_STD_R])
+        total = np.zeros(len(w_t), int)
+        for lam in np.linspace(0, 1, steps + 1)[1:]:
+            r = self._newton(w0 + lam * (w_t - w0), th * lam, x, None, 1e-10, 60)
+            x = r.x
+            total += r.iterations
+        r.iterations = total
+        return r
+
+    # ------------------------------------------------------------------ arguments
+    def p_matrix(self, p, n: int) -> np.ndarray:
+        """Effect parameters as an (n, n_p) matrix: the defaults where ``p`` is None, a (n_p,)
+        vector repeated, or an (n, n_p) matrix as it is."""
+        k = len(self.param_names)
+        if p is None:
+            return np.tile(np.asarray(self.p_default, float), (n, 1)).reshape(n, k)
+        p = np.asarray(p, float)
+        return np.tile(p, (n, 1)) if p.ndim == 1 else p
+
+    @staticmethod
+    def theta_matrix(theta, n: int) -> np.ndarray:
+        """Health parameters as an (n, 10) matrix (zeros where ``theta`` is None)."""
+        if theta is None:
+            return np.zeros((n, N_THETA))
+        theta = np.asarray(theta, float)
+        return np.tile(theta, (n, 1)) if theta.ndim == 1 else theta
+
+    def initial_guess(self, w: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """Starting unknowns (N, 7) for operating points ``w`` (N, 4) and health ``theta``
+        (N, 10): the tabulated guess with its first-order theta correction."""
+        return self._guess(w, theta)
+
+    def jacobian_store(self, n: int) -> JacobianStore | None:
+        """Jacobian factors of ``n`` points to carry between :meth:`solve_from` calls (the
+        compiled driver only; None for an interpreted model)."""
+        return JacobianStore.empty(n, N_UNKNOWNS) if self._newton_c is not None else None
+
+    # ------------------------------------------------------------------ solving
+    def _newton(self, w, theta, x0, p, tol, max_iter, lu=None, backend="auto") -> SolveResult:
+        """One Newton-chord run over a batch (:mod:`newton_driver`), no validity check."""
+        pm = self.p_matrix(p, len(w))
+        if backend == "auto":
+            backend = "c" if self._newton_c is not None else "numpy"
+        if backend == "c":
+            if self._newton_c is None:
+                raise InputError("the compiled Newton driver needs EngineModel(compiled=True)")
+            threads = self.n_threads if len(w) >= 64 else 1
+            return self._newton_c(w, theta, pm, x0, tol, max_iter, threads, lu)
+        if backend != "numpy":
+            raise InputError(f"Newton backend {backend!r}: one of auto, c, numpy")
+
+        def resjac(x, w_, th, p_):
+            n = len(x)
+            r, J = self._eval("resjac", x.T, w_.T, th.T, p_.T)
+            return r.T, J.reshape(N_UNKNOWNS, n, N_UNKNOWNS).transpose(1, 0, 2)
+
+        def residual(x, w_, th, p_):
+            (r,) = self._eval("residual", x.T, w_.T, th.T, p_.T)
+            return r.T
+
+        return newton_chord_numpy(resjac, residual, np.asarray(w, float),
+                                  np.asarray(theta, float), pm, x0, tol, max_iter)
+
+    def solve_from(self, w, theta, x0, p=None, tol: float = 1e-10, max_iter: int = 30,
+                   lu: JacobianStore | None = None, retry: bool = True,
+                   backend: str = "auto") -> SolveResult:
+        """Newton from the given unknowns ``x0`` (N, 7) at ``w`` (N, 4), ``theta`` (N, 10)
+        and ``p``; ``lu`` carries each point's Jacobian factors between calls (compiled driver
+        only, read and updated in place). Roots off the maps are not converged. With
+        ``retry``, failed points are solved again from the tabulated guess and then by
+        continuation (module docstring); ``iterations`` counts every attempt. ``backend``
+        ``"c"`` or ``"numpy"`` picks the Newton implementation (default: C when compiled)."""
+        w = np.atleast_2d(np.asarray(w, float))
+        th = self.theta_matrix(theta, len(w))
+        res = self._newton(w, th, x0, p, tol, max_iter, lu, backend)
+        self._reject_off_map(res)
+        if retry:
+            self._retry(res, w, th, p, tol, max_iter, from_table=True)
+        return res
+
+    def _retry(self, res: SolveResult, w, th, p, tol, max_iter, from_table: bool):
+        bad = np.flatnonzero(~res.converged)
+        if bad.size and from_table:
+            pm = self.p_matrix(p, len(w))
+            r = self._newton(w[bad], th[bad], self.initial_guess(w[bad], th[bad]), pm[bad],
+                             tol, max_iter)
+            self._reject_off_map(r)
+            res.put(bad, r)
+            bad = bad[~r.converged]
+        if bad.size and bad.size <= MAX_CONTINUATION_POINTS:
+            pm = self.p_matrix(p, len(w))
+            r = self._continuation(w[bad], np.array(X_DESIGN, float), th[bad])
+            r2 = self._newton(w[bad], th[bad], r.x, pm[bad], tol, max_iter)
+            self._reject_off_map(r2)
+            # iterations actually spent: the failed attempts, the continuation, the polish
+            r2.iterations = r2.iterations + r.iterations
+            res.put(bad, r2)
+
+    def solve(self, w, theta=None, p=None, x0=None, tol=1e-10, max_iter=30,
+              check=True) -> SolveResult:
+        """Solve the steady state at every row of ``w`` (N, 4): returns :class:`SolveResult`.
+
+        ``theta`` is (10,) or (N, 10); ``x0`` (N, 7) overrides the tabulated starting guess.
+        Points that fail are retried by continuation from the design point before being
+        flagged (a retry from the tabulated guess would repeat the first attempt).
+        """
+        w = np.atleast_2d(np.asarray(w, float))
+        th = self.theta_matrix(theta, len(w))
+        if check:
+            check_w(w)
+            check_theta(th)
+        x0 = self.initial_guess(w, th) if x0 is None else np.asarray(x0, float)
+        res = self.solve_from(w, th, x0, p, tol, max_iter, retry=False)
+        self._retry(res, w, th, p, tol, max_iter, from_table=False)
+        return res
+
+    def valid_on_maps(self, x: np.ndarray) -> np.ndarray:
+        """True where every compressor operates where its map means something
+        (:meth:`maps.CompressorMap.on_map`: from deep choke to just past the surge line). A
+        root of the residual system outside that region is non-physical and is not reported
+        as converged."""
+        d = self.design
+        ok = np.ones(len(x), bool)
+        for j, cmap in enumerate((d.fan, d.lpc, d.hpc)):
+            ok &= cmap.on_map(x[:, j])
+        return ok
+
+    def _reject_off_map(self, res: SolveResult):
+        off = res.converged & ~self.valid_on_maps(res.x)
+        res.converged[off] = False
+
+    def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
+        """Solve a time series with warm starts, vectorised over the whole series.
+
+        Every ``chunk``-th sample is an anchor, solved from the tabulated guess. Every other
+        sample starts from its own tabulated guess corrected by the offset between the
+        preceding anchor's solution and that anchor's tabulated guess: what the table misses
+        (mostly the nonlinear effect of theta and of the effects' parameters, which change
+        slowly along a series) is carried forward. Samples that still fail are retried from
+        the previous converged sample, then as :meth:`solve` retries.
+        """
+        w = np.atleast_2d(np.asarray(w, float))
+        n = len(w)
+        th = self.theta_matrix(theta, n)
+        check_w(w)
+        check_theta(th)
+        pm = self.p_matrix(p, n)
+        chunk = max(1, int(chunk))
+        guess = self.initial_guess(w, th)
+        anchors = np.arange(0, n, chunk)
+        ra = self.solve_from(w[anchors], th[anchors], guess[anchors], pm[anchors], tol,
+                             max_iter, retry=False)
+        offset = np.where(ra.converged[:, None], ra.x - guess[anchors], 0.0)
+        # anchors that failed pass on the offset of the last one that converged
+        ok_idx = np.maximum.accumulate(np.where(ra.converged, np.arange(len(anchors)), -1))
+        offset = np.where((ok_idx >= 0)[:, None], offset[np.maximum(ok_idx, 0)], 0.0)
+        x0 = guess + np.repeat(offset, chunk, axis=0)[:n]
+        x0[anchors] = ra.x
+        out = self.solve_from(w, th, x0, pm, tol, max_iter, retry=False)
+        out.iterations[anchors] += np.where(ra.converged, ra.iterations, 0)
+        bad = np.flatnonzero(~out.converged)
+        if bad.size:
+            good = np.flatnonzero(out.converged)
+            prev = np.searchsorted(good, bad) - 1
+            has = prev >= 0
+            if has.any():
+                src = good[prev[has]]
+                b = bad[has]
+                x1 = guess[b] + (out.x[src] - guess[src])
+                out.put(b, self.solve_from(w[b], th[b], x1, pm[b], tol, max_iter, retry=False))
+            bad = np.flatnonzero(~out.converged)
+            if bad.size:
+                out.put(bad, self.solve(w[bad], th[bad], pm[bad], tol=tol, max_iter=max_iter,
+                                        check=False))
+        return out
+
+    # ------------------------------------------------------------------ at given unknowns
+    def _columns(self, x, w, theta, p):
+        w = np.atleast_2d(np.asarray(w, float))
+        n = len(w)
+        return (np.asarray(x, float).T, w.T, self.theta_matrix(theta, n).T,
+                self.p_matrix(p, n).T)
+
+    def outputs_at(self, x, w, theta=None, p=None) -> np.ndarray:
+        """All outputs (N, len(OUTPUT_NAMES)) at given unknowns (no solve)."""
+        (y,) = self._eval("outputs", *self._columns(x, w, theta, p))
+        return y.T
+
+    def residuals_at(self, x, w, theta=None, p=None) -> np.ndarray:
+        """The seven scaled residuals (N, 7) at given unknowns."""
+        (r,) = self._eval("residual", *self._columns(x, w, theta, p))
+        return r.T
+
+    def sensitivities_at(self, x, w, theta=None, p=None) -> Sensitivities:
+        """Exact ``dy/dtheta`` (N, n_out, 10), ``dy/dw`` (N, n_out, 4) and ``dy/dp`` (N, n_out,
+        n_p) at converged unknowns ``x`` (rows in :data:`channels.OUTPUT_NAMES` order)."""
+        cols = self._columns(x, w, theta, p)
+        n, n_out, n_p = cols[0].shape[1], len(OUTPUT_NAMES), len(self.param_names)
+        outs = self._eval("sens", *cols)
+
+        def per_point(a, k):
+            return a.T.reshape(n, k, n_out).transpose(0, 2, 1)
+
+        dp = per_point(outs[2], n_p) if n_p else np.zeros((n, n_out, 0))
+        return Sensitivities(theta=per_point(outs[0], N_THETA), w=per_point(outs[1], N_W), p=dp)
+
+    # ------------------------------------------------------------------ DataFrame API
+    def evaluate(self, data, theta=None, p=None, x0=None) -> pd.DataFrame:
+        """Evaluate ``F(w, theta)`` on a DataFrame (columns alt, Mach, TRA, T2 and optionally
+        the theta columns) or an (N, 4) array. Returns a DataFrame with every output channel
+        in N-CMAPSS units plus ``converged``, ``residual_norm`` and ``iterations``; outputs of
+        points that did not converge are NaN."""
+        w, th, index = self._unpack(data, theta)
+        res = self.solve(w, th, p, x0=x0)
+        y = self.outputs_at(res.x, w, th, p)
+        y[~res.converged] = np.nan
+        df = pd.DataFrame(y, columns=list(OUTPUT_NAMES), index=index)
+        df["converged"] = res.converged
+        df["residual_norm"] = res.residual_norm
+        df["iterations"] = res.iterations
+        return df
+
+    def _unpack(self, data, theta):
+        if isinstance(data, pd.DataFrame):
+            check_columns(data.columns, W_NAMES, "operating points")
+            index = data.index
+            w = data[list(W_NAMES)].to_numpy(float)
+            th_cols = [c for c in THETA_NAMES if c in data.columns]
+            if theta is None and th_cols:
+                th = np.zeros((len(data), N_THETA))
+                for c in th_cols:
+                    th[:, THETA_NAMES.index(c)] = data[c].to_numpy(float)
+                theta = th
+            check_w(w, np.asarray(index), "operating points")
+        else:
+            w = np.atleast_2d(np.asarray(data, float))
+            if w.shape[1] != N_W:
+                raise InputError(f"operating points: expected {N_W} columns "
+                                 f"({', '.join(W_NAMES)}), got {w.shape[1]}")
+            index = pd.RangeIndex(len(w))
+        th = self.theta_matrix(theta, len(w))
+        if th.shape != (len(w), N_THETA):
+            raise InputError(f"theta: expected shape (N, {N_THETA}), got {th.shape}")
+        check_theta(th, np.asarray(index), "health parameters")
+        return w, th, index
+
+    def sensitivities(self, data, theta=None, p=None, x=None):
+        """Exact sensitivities at the steady state of each point of ``data`` (solved unless
+        the unknowns ``x`` are given): ``(dy_dtheta, dy_dw)`` as arrays (N, n_out, 10) and
+        (N, n_out, 4), rows in :data:`channels.OUTPUT_NAMES` order (:meth:`sensitivities_at`
+        also gives ``dy/dp``)."""
+        w, th, _ = self._unpack(data, theta)
+        if x is None:
+            res = self.solve(w, th, p)
+            if not res.converged.all():
+                i = int(np.flatnonzero(~res.converged)[0])
+                raise InputError(f"steady state did not converge at row {i}; no sensitivities")
+            x = res.x
+        s = self.sensitivities_at(x, w, th, p)
+        return s.theta, s.w
+
+    def point(self, alt, Mach, TRA, T2=None, dT_isa=0.0, theta=None) -> pd.Series:
+        """One operating point; ``T2`` [degR] defaults to ISA + ``dT_isa`` [K] at alt, Mach."""
+        if T2 is None:
+            T2 = float(k_to_r(atmosphere.t2_from_flight(alt, Mach, dT_isa)))
+        th = np.zeros(N_THETA)
+        for k, v in (theta or {}).items():
+            if k not in THETA_NAMES:
+                raise InputError(f"unknown health parameter {k!r}; one of {', '.join(THETA_NAMES)}")
+            th[THETA_NAMES.index(k)] = v
+        df = self.evaluate(np.array([[alt, Mach, TRA, T2]]), theta=th)
+        s = df.iloc[0]
+        s["T2"] = T2
+        return s
+
+    # ------------------------------------------------------------------ symbolic access
+    def residual_system(self) -> ResidualSystem:
+        return ResidualSystem(UNKNOWN_NAMES, OUTPUT_NAMES, self.param_names,
+                              np.array(X_DESIGN, float), self._symbolic["residual"],
+                              self._symbolic["outputs"], self.initial_guess)
+
+    def casadi_function(self) -> ca.Function:
+        """``F(w, theta, p) -> y``: the steady state as one CasADi Function (implicit solve by
+        a Newton rootfinder, exact derivatives), for use inside an optimisation. Starting
+        point of the rootfinder: the design unknowns."""
+        x, w, th, p = (self._sym[k] for k in ("x", "w", "theta", "p"))
+        g = ca.Function("g", [x, ca.vertcat(w, th, p)], [self._sym["res"]])
+        rf = ca.rootfinder("hyprog_steady", "newton", g, {"abstol": 1e-11, "max_iter": 50,
+                                                            "error_on_fail": False})
+        ww = ca.MX.sym("w", w.numel())
+        tt = ca.MX.sym("theta", th.numel())
+        pp = ca.MX.sym("p", p.numel())
+        xs = rf(ca.DM(X_DESIGN), ca.vertcat(ww, tt, pp))
+        y = self._symbolic["outputs"](xs, ww, tt, pp)
+        return ca.Function("hyprog_F", [ww, tt, pp], [y], ["w", "theta", "p"], ["y"])

@@ -1,0 +1,221 @@
+"""The pipeline's configuration: one TOML file, one table per stage, every option named.
+
+A config file holds any subset of the tables and keys below; what it leaves out takes the
+default. A key or table this module does not know is an error naming it and the file (a
+misspelt option would otherwise be silently ignored). Values are type-checked; TOML has no
+null, so an option whose default is "none" (e.g. ``train.max_rul``) is left out to keep it.
+
+The ``run`` table says how the work is spread, not what is computed: every result is the same
+whatever its values (same seeds per unit), so it is in no stage's fingerprint (a resumed run
+with other workers skips what is done) and not in ``metrics.json``
+(:data:`EXECUTION_TABLES`).
+
+===============  ===================  =========================================================
+table            key                  meaning [default]
+===============  ===================  =========================================================
+``pipeline``     ``seed``             seed of every random draw (discover, validation flights,
+                                      network initialisation and batch order) [0]
+``run``          ``jobs``             worker processes of simulate, calibrate and features
+                                      (with ``scheduler = "local"``: the local Dask cluster's
+                                      workers) [1]
+                 ``scheduler``        send simulate, calibrate and features to a Dask cluster:
+                                      its address (``tcp://host:8786``) or ``"local"``
+                                      [none: this machine]
+``data``         ``units``            units of DATA to use [every unit]
+                 ``dev_units``        development units [the metadata's ``dev_units``, else
+                                      every unit but the last]
+                 ``test_units``       test units [the metadata's ``test_units``, else the last
+                                      unit]
+                 ``conformal_units``  development units held out to calibrate a split-conformal
+                                      interval [none]
+``simulate``     ``preset``           with no DATA: simulate this preset (``tiny``, ``ds02``)
+                                      instead of using the committed ``data_samples/tiny`` [""]
+                 ``rate_hz``          sample rate of the simulation [the preset's]
+                 ``seed``             seed of the simulation [0]
+                 ``effects``          effects switched on in the simulated truth, as
+                                      ``hyprog simulate --effect`` takes them (e.g.
+                                      ``"customer_bleed:f0=0.02"``): data with an undeclared
+                                      effect for ``discover`` to find [none]
+``calibrate``    ``method``           ``ukf``, ``ekf``, ``mhe`` or ``map_cycle`` [ukf]
+                 ``params``           health parameters [the paper's three]
+                 ``sensors``          measured channels [every x_s in the data]
+                 ``drift``            random-walk std of theta per sqrt(hour) [0.01; the tiny
+                                      fleet's ten-flight lives need it, README]
+                 ``noise_scale``      multiplier of the documented sensor noise [1.0]
+                 ``prior_std``        prior std of theta [0.02]
+``discover``     ``enabled``          run the discrepancy loop [true]
+                 ``method``           its warm-start estimator [ukf]
+                 ``candidates``       effects to test [the library's steady and sensor effects]
+                 ``alpha``            family-wise level [0.01]
+                 ``max_effects``      most effects to add [3]
+                 ``drift``            ``"mle"`` or a number [mle]
+                 ``n_draws``          draws of the family-wise critical value [20000]
+                 ``augment``          add what was found and recalibrate (``--augment``) [false]
+``train``        ``model``            ``cnn`` or ``fnn`` [cnn]
+                 ``inputs``           input sets, each trained and evaluated
+                                      [["data-driven", "hybrid"]]
+                 ``epochs``           maximum epochs [6: short, so that the default run takes
+                                      a few minutes on 2 cores; the paper's are 30 (CNN) and
+                                      60 (FNN)]
+                 ``window``           CNN window [50]
+                 ``stride``           window step in training [1]
+                 ``max_rul``          cap of the RUL target [no cap]
+                 ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]
+                 ``batch_size``       [1024]
+                 ``lr``               learning rate [0.001]
+                 ``patience``         early-stopping patience [5]
+                 ``alpha``            miscoverage of the conformal interval [0.1]
+                 ``device``           ``cpu``, ``cuda`` or ``auto`` [cpu]
+===============  ===================  =========================================================
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from pathlib import Path
+
+from engine_model.validation import InputError
+
+_INT, _FLOAT, _STR, _BOOL = int, float, str, bool
+_UNITS = "units"  # a list of integers
+_NAMES = "names"  # a list of strings
+
+# table -> key -> (type, default); default None means "not given" (the library's default)
+SCHEMA: dict[str, dict[str, tuple]] = {
+    "pipeline": {"seed": (_INT, 0)},
+    "run": {"jobs": (_INT, 1), "scheduler": (_STR, None)},
+    "data": {"units": (_UNITS, None), "dev_units": (_UNITS, None),
+             "test_units": (_UNITS, None), "conformal_units": (_UNITS, [])},
+    "simulate": {"preset": (_STR, ""), "rate_hz": (_FLOAT, None), "seed": (_INT, 0),
+                 "effects": (_NAMES, [])},
+    "calibrate": {"method": (_STR, "ukf"), "params": (_NAMES, None),
+                  "sensors": (_NAMES, None), "drift": (_FLOAT, 0.01),
+                  "noise_scale": (_FLOAT, 1.0), "prior_std": (_FLOAT, 0.02)},
+    "discover": {"enabled": (_BOOL, True), "method": (_STR, "ukf"),
+                 "candidates": (_NAMES, None), "alpha": (_FLOAT, 0.01),
+                 "max_effects": (_INT, 3), "drift": ((_STR, _FLOAT), "mle"),
+                 "n_draws": (_INT, 20000), "augment": (_BOOL, False)},
+    "train": {"model": (_STR, "cnn"), "inputs": (_NAMES, ["data-driven", "hybrid"]),
+              "epochs": (_INT, 6), "window": (_INT, None), "stride": (_INT, 1),
+              "max_rul": (_FLOAT, None), "ensemble": (_INT, 1), "batch_size": (_INT, 1024),
+              "lr": (_FLOAT, 1e-3), "patience": (_INT, 5), "alpha": (_FLOAT, 0.1),
+              "device": (_STR, "cpu")},
+}
+
+
+#: Tables that say how the work runs, not what it computes (module docstring).
+EXECUTION_TABLES = ("run",)
+
+
+def results_config(config: dict) -> dict:
+    """``config`` without :data:`EXECUTION_TABLES`: what determines the results."""
+    return {t: v for t, v in config.items() if t not in EXECUTION_TABLES}
+
+
+def check_run(config: dict, source: str = "config") -> None:
+    """The ``run`` table's values are usable."""
+    if config["run"]["jobs"] < 1:
+        raise InputError(f"{source}: [run] jobs must be >= 1, got {config['run']['jobs']}")
+
+
+def defaults() -> dict:
+    """The configuration with every default (a fresh copy)."""
+    return {t: {k: copy.deepcopy(d) for k, (_, d) in keys.items()} for t, keys in SCHEMA.items()}
+
+
+def _check_value(where: str, kind, value):
+    """``value`` converted to ``kind`` or an InputError naming ``where``."""
+    if isinstance(kind, tuple):
+        for k in kind:
+            try:
+                return _check_value(where, k, value)
+            except InputError:
+                continue
+        names = " or ".join(getattr(k, "__name__", str(k)) for k in kind)
+        raise InputError(f"{where}: expected {names}, got {value!r}")
+    if kind is _BOOL:
+        ok = isinstance(value, bool)
+    elif kind is _INT:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif kind is _FLOAT:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif kind is _STR:
+        ok = isinstance(value, str)
+    elif kind == _UNITS:
+        ok = isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool)
+                                             for v in value)
+        if ok and len(set(value)) != len(value):
+            raise InputError(f"{where}: a unit is listed twice in {value}")
+    elif kind == _NAMES:
+        ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
+    else:  # pragma: no cover - a schema mistake
+        raise TypeError(kind)
+    if not ok:
+        want = {_UNITS: "a list of integers", _NAMES: "a list of strings"}.get(
+            kind, getattr(kind, "__name__", str(kind)))
+        raise InputError(f"{where}: expected {want}, got {value!r}")
+    return value
+
+
+def merge(config: dict, given: dict, source: str = "config") -> dict:
+    """``config`` updated with the tables of ``given`` (checked against :data:`SCHEMA`)."""
+    out = copy.deepcopy(config)
+    for table, keys in given.items():
+        if table not in SCHEMA:
+            raise InputError(f"{source}: unknown table [{table}]; the tables are "
+                             f"{', '.join(SCHEMA)}")
+        if not isinstance(keys, dict):
+            raise InputError(f"{source}: {table} must be a table ([{table}])")
+        for key, value in keys.items():
+            if key not in SCHEMA[table]:
+                raise InputError(f"{source}: unknown key {key!r} in [{table}]; known keys: "
+                                 f"{', '.join(SCHEMA[table])}")
+            kind = SCHEMA[table][key][0]
+            out[table][key] = _check_value(f"{source}: [{table}] {key}", kind, value)
+    check_run(out, source)
+    return out
+
+
+def load_config(path: str | Path | None = None) -> dict:
+    """The defaults, overridden by the TOML file ``path`` when given."""
+    config = defaults()
+    if path is None:
+        return config
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such config file")
+    if not p.is_file():
+        raise InputError(f"{p}: is a directory, expected a TOML config file")
+    try:
+        given = tomllib.loads(p.read_text())
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not a text file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: not valid TOML ({e})") from None
+    return merge(config, given, str(p))
+
+
+def to_toml(config: dict) -> str:
+    """The configuration as TOML (what the report records; options left at "none" are
+    written as comments)."""
+    lines = []
+    for table, keys in config.items():
+        lines.append(f"[{table}]")
+        for k, v in keys.items():
+            lines.append(f"# {k} = (not set)" if v is None else f"{k} = {_toml_value(v)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _toml_value(v) -> str:
+    import json
+
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, float):
+        return repr(v)
+    return json.dumps(v) if isinstance(v, str) else str(v)
