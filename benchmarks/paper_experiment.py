@@ -20,16 +20,16 @@ development set is 13 s wall, ``benchmarks/results/prognostics_speed.md``), long
 machine; ``--device cuda`` where a GPU is available.
 Options: ``--seeds``, ``--ablations``, ``--epochs``, ``--device`` are passed to step 3.
 
-Across sessions and machines. A session lasts three hours and may start on a fresh machine,
-so the run cache in ``out/`` alone does not carry the experiment to its end. Every finished
-run's record (``result.json``) and test predictions (``predictions.parquet``, plus
-``per_cycle.parquet`` for the baseline; not the trained weights) are kept under
-``benchmarks/results/paper/runs/<key>/`` to be committed: ``--store-only`` copies the finished
-runs there at any moment (the experiment may be running: a run's ``result.json`` is written
-last and atomically), and every start first copies the committed runs back into
-``out/paper/runs/``. A run's key hashes its configuration *and* every value of the feature
-table (``workflows.paper.experiment``), so a committed run is reused only when steps 1-2 gave
-the same table bit for bit (same code, seed and libraries); otherwise it is trained again.
+What is committed. ``benchmarks/results/`` holds small files only: the report (tables,
+``runs.csv``, figures) and, per finished run, its record (``result.json``: configuration,
+metrics, training history) and its per-cycle predictions (``per_cycle.csv``: per test unit and
+cycle the true RUL and the mean, min and max of the predicted RUL, the interval's mean bounds
+when there is one) under ``benchmarks/results/paper/runs/<key>/``. The per-sample predictions
+(``predictions.parquet``, about 1.2 MB a run) and the trained weights stay in ``out/paper/runs/``
+and are not committed; regenerating them, and every table and figure from them, is rerunning
+this script (same code, seed and libraries give the same feature table and the same runs).
+``--store-only`` writes the records of the runs finished so far (the experiment may be
+running: a run's ``result.json`` is written last and atomically).
 """
 
 from __future__ import annotations
@@ -44,13 +44,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout, not whichever tree is installed
-from engine_model.runtime import output_lock  # noqa: E402
 from workflows.paper.experiment import check_experiment_out  # noqa: E402
 
 OUT = ROOT / "out"
 RESULTS = ROOT / "benchmarks" / "results" / "paper"
-STORE = RESULTS / "runs"  # finished runs' records and predictions, committed
-KEPT = ("result.json", "predictions.parquet", "per_cycle.parquet")
+STORE = RESULTS / "runs"  # finished runs' records and per-cycle predictions, committed
 
 
 def hyprog(*args: str) -> None:
@@ -61,18 +59,26 @@ def hyprog(*args: str) -> None:
 
 
 def copy_runs(src: Path, dest: Path) -> int:
-    """Copy the kept files of every finished run (one with ``result.json``) in ``src`` that
-    ``dest`` lacks; ``result.json`` last and by rename, so that a copy cut short is never a
-    finished run (its other files are copied again next time)."""
+    """Store the record of every finished run (one with ``result.json``) in ``src`` that
+    ``dest`` lacks: ``per_cycle.csv`` from its predictions (or the baseline's per-cycle
+    table), then ``result.json`` last and by rename, so that a copy cut short is never a stored
+    run (it is stored again next time)."""
+    import pandas as pd
+
+    from prognostics.metrics import per_cycle
+
     copied = 0
     for run in sorted(src.glob("*/result.json")):
         key = run.parent.name
         if (dest / key / "result.json").is_file():
             continue
         (dest / key).mkdir(parents=True, exist_ok=True)
-        for name in KEPT[1:]:
-            if (run.parent / name).is_file():
-                shutil.copy2(run.parent / name, dest / key / name)
+        preds = run.parent / "predictions.parquet"
+        if preds.is_file():
+            table = per_cycle(pd.read_parquet(preds))
+            tmp = dest / key / f".per_cycle.csv.tmp-{os.getpid()}"
+            table.to_csv(tmp, index=False, float_format="%.6g")
+            os.replace(tmp, dest / key / "per_cycle.csv")
         tmp = dest / key / f".result.json.tmp-{os.getpid()}"
         shutil.copy2(run, tmp)
         os.replace(tmp, dest / key / "result.json")
@@ -95,8 +101,6 @@ def main() -> None:
               f"{STORE.relative_to(ROOT)}")
         return
     check_experiment_out(paper)  # an experiment's folder, empty or absent: nothing else
-    with output_lock(paper):  # not while an experiment writes there
-        print(f"restored {copy_runs(STORE, paper / 'runs')} committed runs", flush=True)
     if not fleet.exists():
         hyprog("simulate", "--preset", "ds02", "--rate", "0.1", "--seed", "0",
                "--out", str(fleet))

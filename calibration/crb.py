@@ -1,7 +1,7 @@
 """Cramér-Rao bounds of the health-parameter estimates, with exact model sensitivities.
 
 Notation: ``S_k = R_k^{-1/2} dF/dtheta (w_k, theta_k)`` (m, k) the whitened exact sensitivities
-of the used sensors at the **true** theta (:func:`base.scaled_sensitivities`), ``Q_k`` the
+of the used sensors at the **true** theta (:func:`observability.scaled_sensitivities`), ``Q_k`` the
 random-walk covariance before sample ``k`` and ``P_0`` the prior covariance.
 
 Random-walk filters (UKF, EKF): the recursive posterior CRB of Tichavsky, Muravchik and

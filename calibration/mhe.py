@@ -24,7 +24,7 @@ pins theta to ~4e-4, below a flight's wear in the tests' unit (7e-4 of HPT effic
 the 95 % interval held the truth on only 72 % of the samples. In each window
 :class:`mhe_nlp.WindowNLP` solves
 the MAP problem: theta for the window (``mode="constant"``) or one theta per sample
-(``mode="random_walk"``, the drift prior between samples), plus the seven unknowns at every
+(``mode="random_walk"``, the drift prior between samples), plus the eight unknowns at every
 sample, the steady-state residuals as equality constraints, bounds on theta, and the
 **arrival cost** ``1/2 |C (theta_first - mu)|^2``.
 
@@ -55,8 +55,8 @@ Fisher information with the arrival cost (and the drift prior in random-walk mod
 inverse of the Gauss-Newton reduced Hessian; ``x_hat`` are the model's outputs at the window's
 solution ``(x_k, theta_k)``.
 
-Observability: :func:`base.check_observability` (Fisher-information rank over the unit at the
-prior mean, the setup's policy): an unobservable parameter is held at its prior mean, reported
+Observability: :func:`observability.check_observability` (Fisher-information rank over the unit at
+the prior mean, the setup's policy): an unobservable parameter is held at its prior mean, reported
 as NaN and listed in ``diagnostics["unobservable"]``; only the observable ones become decision
 variables. ``diagnostics["window_data_rank"]`` is the rank of each window's data-only Fisher
 information (a window flown at one operating point may see less than the unit; the arrival
@@ -97,7 +97,7 @@ _PAD = 16  # a window's length is padded up to a multiple of this (one NLP per p
 @dataclass
 class MHEOptions:
     """Settings of the windowed MAP estimator itself (the noise, drift, prior, bounds and
-    observability settings are the :class:`base.CalibrationSetup`'s)."""
+    observability settings are the :class:`estimation_setup.CalibrationSetup`'s)."""
 
     window: int = 60  # samples per window [60: 10 min at 0.1 Hz]
     stride: int | None = None  # samples the window moves [None: = window, no overlap]

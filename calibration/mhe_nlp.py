@@ -1,9 +1,10 @@
 """The windowed MAP problem as an IPOPT nonlinear program, built once per window length.
 
 One window holds ``N`` consecutive samples ``k = 1..N`` of one unit. Decision variables are the
-model's seven internal unknowns ``x_k`` at every sample and the estimated health parameters,
-either one ``theta`` for the window (``mode="constant"``) or one ``theta_k`` per sample
-(``mode="random_walk"``). The problem (simultaneous formulation)::
+model's eight internal unknowns ``x_k`` (:data:`engine_model.physics.turbofan.UNKNOWN_NAMES`) at
+every sample and the estimated health parameters, either one ``theta`` for the window
+(``mode="constant"``) or one ``theta_k`` per sample (``mode="random_walk"``). The problem
+(simultaneous formulation)::
 
     min  1/2 sum_k |e_k|^2 + 1/2 |C (theta_1 - mu)|^2 + 1/2 sum_k |D_k o (theta_k - theta_k-1)|^2
     s.t.  r(x_k, w_k, theta_k, p_k) = 0                       k = 1..N   (7 steady-state residuals)

@@ -7,15 +7,18 @@ One job per module:
 - :mod:`.splits`       development / validation / conformal-calibration rows
 - :mod:`.windows`      sliding windows as strided views (no per-window copy)
 - :mod:`.models`       the paper's FNN and 1-D CNN
-- :mod:`.training`     the training loop (AMSGrad, early stopping, seeds)
-- :mod:`.ensemble`     a trained model (one or more seeds) and its predictions
+- :mod:`.training`     the training loop of one network (AMSGrad, early stopping, seeds)
+- :mod:`.ensemble`     a trained model (one network per seed), :func:`~.ensemble.fit`, predictions
 - :mod:`.conformal`    split-conformal prediction intervals
 - :mod:`.checkpoint`   safe save / load (safetensors + JSON, SHA-256 checked)
 - :mod:`.metrics`      RMSE, NASA score, per-cycle mean, prediction horizon, coverage
 - :mod:`.baseline`     physics-only RUL from the health-index trend of theta_hat
-- :mod:`.experiment`   the paper's experiments and ablations, cached per run
+- :mod:`.outputs`      tables, JSON and text written atomically
 - :mod:`.plots`        figures (matplotlib, Agg)
 
-This is the only package of hyprog that imports torch; importing ``prognostics`` itself does
-not (the modules that need it import it).
+This is the pure ML library: it reads feature tables and never imports :mod:`calibration`, the
+simulator (:mod:`engine_model.simulator`) or the application layer (:mod:`workflows`, which holds
+the pipeline and the paper's experiment); the physics baseline uses the engine model through
+:mod:`engine_model.physics.health_index`. It is the only package of hyprog that imports torch;
+importing ``prognostics`` itself does not (the modules that need it import it).
 """

@@ -1,5 +1,7 @@
-"""Import boundaries: reading data never imports CasADi, only prognostics imports torch, and
-no package outside ``engine_model`` reaches into its private names.
+"""Import boundaries: the packages import one way (``engine_model`` <- ``calibration`` <-
+``prognostics`` <- ``workflows`` <- ``cli``), ``engine_model``'s sub-packages in their own order,
+no module-level import cycle, reading data never imports CasADi, only prognostics imports torch,
+and no package outside ``engine_model`` reaches into its private names.
 
 The import checks run in a fresh interpreter (this test process has imported everything).
 """
@@ -13,7 +15,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-OUTSIDE = ("calibration", "prognostics", "cli", "benchmarks")
+OUTSIDE = ("calibration", "prognostics", "workflows", "cli", "benchmarks")
 
 
 def modules_after_import(statement: str) -> dict[str, bool]:
@@ -134,8 +136,9 @@ def test_no_private_engine_model_names_outside_engine_model():
 
 
 def relative_imports(module: str) -> set[str]:
-    """The engine_model modules ``engine_model/<module>.py`` imports (relative or absolute)."""
-    tree = ast.parse((REPO / "engine_model" / f"{module}.py").read_text())
+    """The ``engine_model.physics`` modules and top-level ``engine_model`` modules that
+    ``engine_model/physics/<module>.py`` imports (relative or absolute)."""
+    tree = ast.parse((REPO / "engine_model" / "physics" / f"{module}.py").read_text())
     out = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
@@ -144,7 +147,7 @@ def relative_imports(module: str) -> set[str]:
             elif node.level == 1:
                 out |= {a.name for a in node.names}
             elif node.module and node.module.startswith("engine_model."):
-                out.add(node.module.split(".")[1])
+                out.add(node.module.split(".")[-1])
     return out
 
 
@@ -154,3 +157,172 @@ def test_effect_modules_import_one_way():
     assert {"effect_base", "effect_library"} <= relative_imports("effects")
     loaded = modules_after_import("from engine_model.physics.effects import registry, EffectSet")
     assert loaded == {"casadi": False, "torch": False, "engine_model.solver.model": False}
+
+
+# ---------------------------------------------------------------------------------------------
+# the import order of the packages, and no cycle
+# ---------------------------------------------------------------------------------------------
+
+PACKAGES = ("engine_model", "calibration", "prognostics", "workflows", "cli")  # low -> high
+DATA = "data_samples"  # packaged data: imports nothing of hyprog, anyone may import it
+CORE = {"engine_model", "engine_model.channels", "engine_model.units", "engine_model.validation"}
+RUNTIME_GENERIC = {f"engine_model.runtime.{m}" for m in ("critical", "atomic", "ownership",
+                                                         "lock")} | {"engine_model.runtime"}
+
+
+def module_files() -> dict[str, tuple[Path, bool]]:
+    """Every module of hyprog's packages: dotted name -> (file, is a package __init__)."""
+    mods = {}
+    for package in (*PACKAGES, DATA):
+        for file in sorted((REPO / package).rglob("*.py")):
+            parts = list(file.relative_to(REPO).with_suffix("").parts)
+            is_pkg = parts[-1] == "__init__"
+            mods[".".join(parts[:-1] if is_pkg else parts)] = (file, is_pkg)
+    return mods
+
+
+def _import_nodes(tree: ast.Module, module_level: bool):
+    """Import statements; ``module_level``: only those a module runs when it is imported (its
+    body, ``if`` / ``try`` blocks; not function bodies, not ``if TYPE_CHECKING``)."""
+    if not module_level:
+        yield from (n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom)))
+        return
+
+    def walk(body):
+        for n in body:
+            if isinstance(n, (ast.Import, ast.ImportFrom)):
+                yield n
+            elif isinstance(n, ast.If) and "TYPE_CHECKING" not in ast.unparse(n.test):
+                yield from walk(n.body)
+                yield from walk(n.orelse)
+            elif isinstance(n, ast.Try):
+                for block in (n.body, n.orelse, n.finalbody, *(h.body for h in n.handlers)):
+                    yield from walk(block)
+
+    yield from walk(tree.body)
+
+
+def import_graph(module_level: bool) -> dict[str, set[str]]:
+    """module -> the hyprog modules it imports (``from pkg import sub`` counts as ``pkg.sub``
+    when ``sub`` is a module, else as ``pkg``)."""
+    mods = module_files()
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for mod, (file, is_pkg) in mods.items():
+        for node in _import_nodes(ast.parse(file.read_text(), str(file)), module_level):
+            if isinstance(node, ast.Import):
+                graph[mod] |= {a.name for a in node.names if a.name in mods}
+                continue
+            if node.level:
+                base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                base = base[:len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            for a in node.names:
+                if f"{target}.{a.name}" in mods:
+                    graph[mod].add(f"{target}.{a.name}")
+                elif target in mods:
+                    graph[mod].add(target)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan 1972)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1 or v in graph.get(v, ()):
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+@pytest.mark.parametrize("module_level", [True, False], ids=["module-level", "any-import"])
+def test_no_import_cycle(module_level):
+    """No cycle among the imports a module runs when imported; and none either when the
+    imports inside functions are counted (none is there only to break a circle)."""
+    assert cycles(import_graph(module_level)) == []
+
+
+def _rank(module: str) -> int:
+    top = module.split(".")[0]
+    return -1 if top == DATA else PACKAGES.index(top)
+
+
+def test_packages_import_one_way():
+    """``engine_model`` <- ``calibration`` <- ``prognostics`` <- ``workflows`` <- ``cli``:
+    no module imports a package above its own (any import, also inside a function)."""
+    upward = [f"{m} imports {t}" for m, targets in import_graph(False).items()
+              for t in sorted(targets) if _rank(t) > _rank(m)]
+    assert upward == []
+
+
+def test_prognostics_is_the_pure_ml_library():
+    """prognostics imports neither calibration, the simulator, the solver's internals nor the
+    application layer: of engine_model only the core names, data sets, runtime and the health
+    index."""
+    allowed = CORE | RUNTIME_GENERIC | {"engine_model.physics.health_index",
+                                        "engine_model.runtime.shared_model"}
+    bad = [f"{m} imports {t}" for m, targets in import_graph(False).items()
+           if m.startswith("prognostics") for t in sorted(targets)
+           if not t.startswith(("prognostics", DATA)) and t not in allowed
+           and not t.startswith("engine_model.datasets")]
+    assert bad == []
+
+
+ENGINE_LAYERS = {  # sub-package -> what else of engine_model it may import
+    "physics": CORE,
+    "solver": CORE | {"physics"},
+    "datasets": CORE | RUNTIME_GENERIC,
+    "runtime": CORE | RUNTIME_GENERIC,
+}
+
+
+def test_engine_model_sub_packages_import_in_order():
+    """physics <- solver; data sets and the generic process machinery know no physics; the
+    simulator and the analyses sit on top. ``runtime.cluster`` and ``runtime.shared_model``
+    build the engine model for a worker process, so they may import the solver."""
+    bad = []
+    for m, targets in import_graph(False).items():
+        parts = m.split(".")
+        if parts[0] != "engine_model" or len(parts) < 2 or parts[1] not in ENGINE_LAYERS:
+            continue
+        if m in ("engine_model.runtime.cluster", "engine_model.runtime.shared_model"):
+            continue
+        allowed = ENGINE_LAYERS[parts[1]]  # module names, or sub-package names
+        for t in sorted(targets):
+            tp = t.split(".")
+            if tp[0] != "engine_model" or t in allowed or tp[1:2] in ([parts[1]], ) \
+                    or (len(tp) > 1 and tp[1] in allowed):
+                continue
+            bad.append(f"{m} imports {t}")
+    assert bad == []

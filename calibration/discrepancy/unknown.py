@@ -5,7 +5,7 @@ On the whitened residual ``e`` of the final fit (per channel; under a right mode
 zero-mean, unit variance and unrelated to the operating point):
 
 - **dependence on the operating variables**: least squares of ``e_j`` on the documented basis
-  :data:`BASIS` (standardised), F-test against the intercept-only model;
+  :data:`BASIS_NAMES` (standardised), F-test against the intercept-only model;
 - **bias**: the channel mean, t-test;
 - **whiteness**: lag-1 autocorrelation within flights, ``z = r1 sqrt(n)``;
 - **size**, only on channels whose noise level the noise check could not estimate (no two

@@ -6,7 +6,7 @@
 >>> df[["T30", "Wf", "converged"]]
 
 Steady state. The cycle of :mod:`turbofan` is a residual system ``r(x; w, theta, p) = 0`` in
-seven unknowns ``x`` (:data:`turbofan.UNKNOWN_NAMES`); ``p`` are the parameters of the optional
+eight unknowns ``x`` (:data:`turbofan.UNKNOWN_NAMES`); ``p`` are the parameters of the optional
 effects (:mod:`effects`), a first-class input next to ``theta`` everywhere. A batch of points
 is solved by the damped Newton-chord iteration of :mod:`newton_driver` with the exact Jacobian
 ``dr/dx`` (CasADi AD): compiled to C with the residual functions and run over the batch on
@@ -399,7 +399,7 @@ class EngineModel:
         return y.T
 
     def residuals_at(self, x, w, theta=None, p=None) -> np.ndarray:
-        """The seven scaled residuals (N, 7) at given unknowns."""
+        """The scaled residuals (N, N_UNKNOWNS), one per unknown, at given unknowns."""
         (r,) = self._eval("residual", *self._columns(x, w, theta, p))
         return r.T
 
