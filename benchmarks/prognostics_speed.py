@@ -44,7 +44,8 @@ import torch
 from engine_model.channels import W_NAMES, XS_NAMES, XV_NAMES
 from prognostics.models import build_model, parameter_count
 from prognostics.splits import TRAIN, VALIDATION
-from prognostics.training import TrainConfig, prepare, resolve_device, train_member
+from prognostics.train_config import TrainConfig
+from prognostics.training import prepare, resolve_device, train_member
 
 THETA_HAT = ("HPT_eff_mod_hat", "LPT_eff_mod_hat", "LPT_flow_mod_hat")  # ds02's calibration
 

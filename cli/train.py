@@ -56,7 +56,7 @@ def train(
     from engine_model.runtime import output_lock
     from prognostics.checkpoint import check_model_target, save_model
     from prognostics.ensemble import fit
-    from prognostics.training import TrainConfig
+    from prognostics.train_config import TrainConfig
 
     with user_errors(features):
         if ensemble < 1:

@@ -7,6 +7,7 @@ One job per module:
 - :mod:`.splits`       development / validation / conformal-calibration rows
 - :mod:`.windows`      sliding windows as strided views (no per-window copy)
 - :mod:`.models`       the paper's FNN and 1-D CNN
+- :mod:`.train_config` :class:`~.train_config.TrainConfig`, what defines a training run
 - :mod:`.training`     the training loop of one network (AMSGrad, early stopping, seeds)
 - :mod:`.ensemble`     a trained model (one network per seed), :func:`~.ensemble.fit`, predictions
 - :mod:`.conformal`    split-conformal prediction intervals

@@ -56,7 +56,8 @@ from engine_model.validation import InputError
 
 from .conformal import SplitConformal
 from .scaling import MinMaxScaler
-from .training import Member, TrainConfig
+from .train_config import TrainConfig
+from .training import Member
 
 FORMAT = "hyprog-prognostics"
 FORMAT_VERSION = 1

@@ -36,9 +36,9 @@ from .metrics import evaluate_predictions
 from .models import build_model
 from .scaling import MinMaxScaler
 from .splits import CONFORMAL, TRAIN, segments
+from .train_config import TrainConfig
 from .training import (
     Member,
-    TrainConfig,
     deterministic,
     predict_windows,
     prepare,

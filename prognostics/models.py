@@ -37,13 +37,12 @@ from torch import nn
 
 from engine_model.validation import InputError
 
-MODEL_KINDS = ("fnn", "cnn")
+from .train_config import MODEL_KINDS
+
 FNN_HIDDEN = (200, 200, 200, 50)
 CNN_CHANNELS = (10, 10, 1)
 CNN_KERNEL = 10
 CNN_DENSE = 50
-DEFAULT_EPOCHS = {"fnn": 60, "cnn": 30}
-DEFAULT_WINDOW = {"fnn": 1, "cnn": 50}
 
 
 class FNN(nn.Module):

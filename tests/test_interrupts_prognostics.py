@@ -220,7 +220,7 @@ def trained(tmp_path_factory, one_thread):
     and its uninterrupted ``hyprog train TRAIN`` model (the library's fit and save)."""
     from prognostics.checkpoint import save_model
     from prognostics.ensemble import fit
-    from prognostics.training import TrainConfig
+    from prognostics.train_config import TrainConfig
 
     root = tmp_path_factory.mktemp("train")
     df, meta = synthetic_features(samples=(40, 60))

@@ -23,7 +23,8 @@ from prognostics.splits import (
     development_and_test_units,
     segments,
 )
-from prognostics.training import TrainConfig, prepare
+from prognostics.train_config import TrainConfig
+from prognostics.training import prepare
 from prognostics.windows import make_windows
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")

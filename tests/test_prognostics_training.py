@@ -16,7 +16,7 @@ from engine_model.validation import InputError
 from prognostics.checkpoint import MANIFEST, load_model, save_model, sha256_bytes
 from prognostics.ensemble import RulModel, fit
 from prognostics.models import CNN1D, FNN, SameConv1d, build_model, parameter_count
-from prognostics.training import TrainConfig
+from prognostics.train_config import TrainConfig
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 

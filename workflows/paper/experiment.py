@@ -68,7 +68,7 @@ from prognostics.ensemble import fit
 from prognostics.metrics import evaluate_predictions
 from prognostics.outputs import write_json, write_table
 from prognostics.splits import development_and_test_units
-from prognostics.training import TrainConfig
+from prognostics.train_config import TrainConfig
 
 from .paper_report import write_report
 from .plan import PERFECT, PERTURBATIONS, ExperimentConfig, Run, plan

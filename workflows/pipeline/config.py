@@ -5,6 +5,15 @@ default. A key or table this module does not know is an error naming it and the 
 misspelt option would otherwise be silently ignored). Values are type-checked; TOML has no
 null, so an option whose default is "none" (e.g. ``train.max_rul``) is left out to keep it.
 
+The ``train`` table is derived from the library's :class:`~prognostics.train_config.TrainConfig`
+(its fields, types and defaults), so that a training option is written once: every field but
+those another table sets (:data:`TRAIN_SET_ELSEWHERE`), with the pipeline's own defaults
+where they differ (:data:`TRAIN_PIPELINE_DEFAULTS`) and its own keys (:data:`TRAIN_PIPELINE_KEYS`).
+The ``calibrate`` table's ``noise_scale`` and ``prior_std`` take
+:class:`~calibration.CalibrationSetup`'s defaults; its ``drift`` default (0.01 per sqrt(hour))
+is the pipeline's own: the tiny fleet's ten-flight lives need more drift than the library's
+1e-3.
+
 The ``run`` table says how the work is spread, not what is computed: every result is the same
 whatever its values (same seeds per unit), so it is in no stage's fingerprint (a resumed run
 with other workers skips what is done) and not in ``metrics.json``
@@ -54,18 +63,19 @@ table            key                  meaning [default]
 ``train``        ``model``            ``cnn`` or ``fnn`` [cnn]
                  ``inputs``           input sets, each trained and evaluated
                                       [["data-driven", "hybrid"]]
+                 ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]
                  ``epochs``           maximum epochs [6: short, so that the default run takes
                                       a few minutes on 2 cores; the paper's are 30 (CNN) and
                                       60 (FNN)]
-                 ``window``           CNN window [50]
-                 ``stride``           window step in training [1]
-                 ``max_rul``          cap of the RUL target [no cap]
-                 ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]
-                 ``batch_size``       [1024]
-                 ``lr``               learning rate [0.001]
-                 ``patience``         early-stopping patience [5]
-                 ``alpha``            miscoverage of the conformal interval [0.1]
-                 ``device``           ``cpu``, ``cuda`` or ``auto`` [cpu]
+                 ``device``           ``cpu``, ``cuda`` or ``auto`` [cpu: the same numbers on
+                                      every machine]
+                 every other field    of :class:`prognostics.train_config.TrainConfig`, with
+                                      its default there: ``window`` [50 CNN / 1 FNN],
+                                      ``stride`` [1], ``max_rul`` [no cap], ``batch_size``
+                                      [1024], ``lr`` [0.001], ``patience`` [5],
+                                      ``val_fraction`` [0.1], ``validation`` [flights],
+                                      ``val_units`` [none], ``alpha`` (miscoverage of the
+                                      conformal interval) [0.1]
 ===============  ===================  =========================================================
 """
 
@@ -73,13 +83,55 @@ from __future__ import annotations
 
 import copy
 import tomllib
+import types
+import typing
+from dataclasses import MISSING, fields
 from pathlib import Path
 
+from calibration.estimation_setup import CalibrationSetup
 from engine_model.validation import InputError
+from prognostics.train_config import TrainConfig
 
 _INT, _FLOAT, _STR, _BOOL = int, float, str, bool
 _UNITS = "units"  # a list of integers
 _NAMES = "names"  # a list of strings
+
+#: TrainConfig fields that another table sets: the seed ([pipeline] seed), the input set (one
+#: run per entry of [train] inputs) and the units ([data])
+TRAIN_SET_ELSEWHERE = ("seed", "inputs", "units", "test_units", "conformal_units")
+#: [train] defaults of the pipeline that differ from TrainConfig's (module docstring)
+TRAIN_PIPELINE_DEFAULTS = {"epochs": 6, "device": "cpu"}
+#: [train] keys of the pipeline that are not TrainConfig fields
+TRAIN_PIPELINE_KEYS = {"inputs": (_NAMES, ["data-driven", "hybrid"]), "ensemble": (_INT, 1)}
+
+
+def _kind(hint):
+    """The schema type of a dataclass field's type hint (``X | None`` as ``X``)."""
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        (hint,) = [a for a in typing.get_args(hint) if a is not type(None)]
+    if typing.get_origin(hint) is tuple and typing.get_args(hint)[0] is int:
+        return _UNITS
+    if hint in (_INT, _FLOAT, _STR, _BOOL):
+        return hint
+    raise TypeError(f"no config type for {hint!r}")  # pragma: no cover - a new field's type
+
+
+def _train_schema() -> dict[str, tuple]:
+    """The [train] table: TrainConfig's fields in their order, the pipeline's keys after
+    ``model``."""
+    hints = typing.get_type_hints(TrainConfig)
+    schema = {}
+    for f in fields(TrainConfig):
+        if f.name == "inputs":
+            schema.update(TRAIN_PIPELINE_KEYS)
+        if f.name in TRAIN_SET_ELSEWHERE:
+            continue
+        default = f.default if f.default is not MISSING else f.default_factory()
+        schema[f.name] = (_kind(hints[f.name]), TRAIN_PIPELINE_DEFAULTS.get(f.name, default))
+    return schema
+
+
+_SETUP = CalibrationSetup()
 
 # table -> key -> (type, default); default None means "not given" (the library's default)
 SCHEMA: dict[str, dict[str, tuple]] = {
@@ -91,17 +143,29 @@ SCHEMA: dict[str, dict[str, tuple]] = {
                  "effects": (_NAMES, [])},
     "calibrate": {"method": (_STR, "ukf"), "params": (_NAMES, None),
                   "sensors": (_NAMES, None), "drift": (_FLOAT, 0.01),
-                  "noise_scale": (_FLOAT, 1.0), "prior_std": (_FLOAT, 0.02)},
+                  "noise_scale": (_FLOAT, _SETUP.noise_scale),
+                  "prior_std": (_FLOAT, _SETUP.prior_std)},
     "discover": {"enabled": (_BOOL, True), "method": (_STR, "ukf"),
                  "candidates": (_NAMES, None), "alpha": (_FLOAT, 0.01),
                  "max_effects": (_INT, 3), "drift": ((_STR, _FLOAT), "mle"),
                  "n_draws": (_INT, 20000), "augment": (_BOOL, False)},
-    "train": {"model": (_STR, "cnn"), "inputs": (_NAMES, ["data-driven", "hybrid"]),
-              "epochs": (_INT, 6), "window": (_INT, None), "stride": (_INT, 1),
-              "max_rul": (_FLOAT, None), "ensemble": (_INT, 1), "batch_size": (_INT, 1024),
-              "lr": (_FLOAT, 1e-3), "patience": (_INT, 5), "alpha": (_FLOAT, 0.1),
-              "device": (_STR, "cpu")},
+    "train": _train_schema(),
 }
+
+
+def train_config(config: dict, inputs: str, split: dict[str, list[int]],
+                 seed: int | None = None) -> TrainConfig:
+    """The :class:`TrainConfig` of one input set: the [train] table's TrainConfig fields, the
+    seed (``[pipeline] seed`` unless given) and the split's development, test and conformal
+    units."""
+    c = config["train"]
+    kw = {k: c[k] for k in SCHEMA["train"] if k not in TRAIN_PIPELINE_KEYS}
+    if kw["val_units"] is not None:
+        kw["val_units"] = tuple(kw["val_units"])
+    return TrainConfig(**kw, inputs=inputs,
+                       seed=config["pipeline"]["seed"] if seed is None else seed,
+                       units=tuple(split["dev"]), test_units=tuple(split["test"]),
+                       conformal_units=tuple(split["conformal"]))
 
 
 #: Tables that say how the work runs, not what it computes (module docstring).

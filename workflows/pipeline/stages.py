@@ -38,6 +38,8 @@ import numpy as np
 from data_samples import TINY_FLEET, sample_path
 from engine_model.validation import InputError
 
+from .config import train_config
+
 
 def default_data() -> Path:
     """The packaged sample fleet (``data_samples/tiny``), the data of a run without DATA."""
@@ -281,7 +283,6 @@ def train(ctx: Context, folder: Path, feats: dict) -> dict:
     from prognostics.checkpoint import load_model, save_model
     from prognostics.ensemble import fit
     from prognostics.outputs import write_json
-    from prognostics.training import TrainConfig
 
     c, seed = ctx.config["train"], ctx.config["pipeline"]["seed"]
     split = feats["split"]
@@ -296,13 +297,7 @@ def train(ctx: Context, folder: Path, feats: dict) -> dict:
         else:
             ctx.log(f"  training {c['model'].upper()} on {inputs} ({len(feats['inputs'][inputs])}"
                     " inputs)")
-            cfg = TrainConfig(model=c["model"], inputs=inputs, window=c["window"],
-                              stride=c["stride"], max_rul=c["max_rul"], seed=seed,
-                              epochs=c["epochs"], batch_size=c["batch_size"], lr=c["lr"],
-                              patience=c["patience"], units=tuple(split["dev"]),
-                              test_units=tuple(split["test"]),
-                              conformal_units=tuple(split["conformal"]), alpha=c["alpha"],
-                              device=c["device"])
+            cfg = train_config(ctx.config, inputs, split)
             t0 = time.perf_counter()
             model = fit(df, meta, cfg, seeds=range(seed, seed + c["ensemble"]),
                         quiet=ctx.quiet, source=str(table))
