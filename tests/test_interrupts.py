@@ -290,3 +290,22 @@ def test_a_signal_in_a_critical_section_is_raised_just_after_it():
         _busy(2.0)
         raise AssertionError("the deferred interrupt was not raised after the section")
     assert finished == [True]
+
+
+def test_a_critical_section_defers_any_handler_and_restores_it():
+    """Without the CLI's handler too (Python's default KeyboardInterrupt): the section holds
+    the signal back itself, puts the handler back, and nested sections defer to the outer."""
+    from engine_model.runtime.critical import critical_section, in_critical_section
+
+    before = signal.getsignal(signal.SIGINT)
+    finished = []
+    with pytest.raises(KeyboardInterrupt):
+        with critical_section():
+            with critical_section():
+                os.kill(os.getpid(), signal.SIGINT)
+                _busy(0.2)
+            _busy(0.2)  # the inner section's end does not raise it
+            finished.append(in_critical_section())
+        raise AssertionError("the deferred interrupt was not raised after the section")
+    assert finished == [True] and not in_critical_section()
+    assert signal.getsignal(signal.SIGINT) is before
