@@ -18,7 +18,7 @@ window length, i.e. non-overlapping windows). A constant-theta window must not h
 the drift model, so with the drift per cycle the windows restart at every cycle's first
 sample: each cycle is cut into windows on its own (its last window may be shorter). Without
 this a window that straddles a flight boundary fits one theta to two flights' values and
-reports each sample a std that ignores the step: with the information of issue 12's engine
+reports each sample a std that ignores the step: with the information of the present engine
 (the fan speed free at flight idle, where the minimum-N2 limiter holds the core) one flight
 pins theta to ~4e-4, below a flight's wear in the tests' unit (7e-4 of HPT efficiency), and
 the 95 % interval held the truth on only 72 % of the samples. In each window

@@ -1,7 +1,7 @@
 """The model-discrepancy loop: find what a calibrated model lacks, add it, prove the fix.
 
 A calibrated model that still disagrees with the data is telling you something. This package
-finds out what (``hyprog discover``; issue 14), one job per module:
+finds out what (``hyprog discover``), one job per module:
 
 ==================  =========================================================================
 module              job

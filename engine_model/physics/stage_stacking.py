@@ -6,7 +6,7 @@ parameter ``flow_mod`` scales the corrected flow at a map point (the N-CMAPSS co
 Whether such a loss consumes stall margin depends on where the compressor's flow is set.
 This module builds the compressor stage by stage instead, fouls some of its stages and
 compares the margins; ``benchmarks/booster_stage_stacking.py`` prints the table for the
-booster (issue 12 asked whether the booster's margin at sea-level take-off must fall).
+booster (does the booster's margin at sea-level take-off fall when it loses flow capacity?).
 
 Method
 ------
