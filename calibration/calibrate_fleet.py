@@ -35,14 +35,15 @@ layout of :mod:`engine_model.datasets`, one unit written atomically as soon as i
 (:func:`datasets.write_unit_part`: a unit is complete or absent, never an empty folder). The
 metadata of the input is kept and a ``calibration`` entry added (method, options, setup,
 hyprog version, and per unit the ``input`` it was computed from: rows, sensors used and the
-fingerprint of its rows, :mod:`calibration.fingerprint`).
+fingerprint of its rows, :func:`engine_model.datasets.fingerprint.rows_fingerprint`).
 
 Safety of the output:
 
 - one writer per ``out`` (:func:`engine_model.runtime.output_lock`): a second run into the
   same ``out`` is refused while the first runs; a lock left by a killed run is taken over;
 - ``out`` must be absent, empty or a feature table hyprog wrote (a raw dataset or a folder of
-  other files is refused);
+  other files is refused), and never the data it reads (the ownership rule,
+  :mod:`engine_model.runtime.ownership`, kind :data:`FEATURE_TABLE`);
 - resume: rerunning with the same ``out`` skips a unit only when *its own* stored metadata
   matches this run: the settings (method, options, setup) and the fingerprint of the unit's
   input rows; any difference is an error naming the unit and the setting or input that
@@ -56,7 +57,9 @@ data against the model at theta = 0, units of measure), so bad input fails befor
 is written. After estimating, :func:`unit_check.check_result` adds warnings (a channel the
 model cannot explain, theta_hat at a bound) to each unit's summary.
 
-Worker processes die with their parent (:func:`engine_model.runtime.cluster.watch_parent`): on Linux
+The executor (serial, worker processes or Dask) is the runtime's one
+(:func:`engine_model.runtime.cluster.executor`), shared with ``hyprog simulate``. Worker
+processes die with their parent (:func:`engine_model.runtime.cluster.watch_parent`): on Linux
 through ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, everywhere through a watchdog thread that ends
 the worker when its parent process is gone, so a SIGKILL of ``hyprog calibrate --jobs J``
 leaves no worker behind.
@@ -73,11 +76,12 @@ import numpy as np
 import pandas as pd
 
 from engine_model import datasets, runtime
+from engine_model.datasets.fingerprint import rows_fingerprint
+from engine_model.runtime.cluster import executor, process_model
 from engine_model.validation import InputError
 
 from .base import estimator_class
 from .estimation_setup import CalibrationSetup
-from .fingerprint import input_record
 from .series import prepare_unit
 from .unit_check import check_result, check_units
 
@@ -175,8 +179,6 @@ def worker_model(threads: int | None, effects: Sequence[str] = ()):
     their values), built once per process (:func:`engine_model.runtime.cluster.process_model`): the
     process-wide default model when there are no effects and ``threads`` is None, else a
     ``threads``-threaded variant (single-threaded in a worker)."""
-    from engine_model.runtime.cluster import process_model
-
     return process_model(effects, threads)
 
 
@@ -214,60 +216,6 @@ def run_task(task: dict) -> list[tuple]:
     return out
 
 
-# ----------------------------------------------------------------------------- executors
-class _Serial:
-    def __init__(self, threads=None):
-        self.threads = threads
-
-    def run(self, tasks):
-        for t in tasks:
-            yield run_task(t)
-
-    def close(self):
-        pass
-
-    def abort(self):
-        pass
-
-
-class _Processes:
-    """Tasks on ``jobs`` worker processes that die with this one
-    (:class:`engine_model.runtime.cluster.ProcessPool`)."""
-
-    def __init__(self, jobs):
-        from engine_model.runtime.cluster import ProcessPool
-
-        self.pool = ProcessPool(jobs)
-
-    def run(self, tasks):
-        yield from self.pool.map(run_task, tasks)
-
-    def close(self):
-        self.pool.close()
-
-    def abort(self):
-        self.pool.abort()
-
-
-class _Dask:
-    """Tasks on a Dask cluster (:func:`engine_model.runtime.cluster.connect`)."""
-
-    def __init__(self, scheduler, jobs):
-        from engine_model.runtime.cluster import connect
-
-        self.cluster = connect(scheduler, jobs)
-        self.n_workers = self.cluster.n_workers
-
-    def run(self, tasks):
-        yield from self.cluster.map(run_task, tasks)
-
-    def close(self):
-        self.cluster.close()
-
-    def abort(self):
-        self.close()
-
-
 # ----------------------------------------------------------------------------- driver
 def _flat(d, prefix="") -> dict:
     """``{"setup": {"noise_scale": 1}}`` -> ``{"setup.noise_scale": 1}``."""
@@ -292,20 +240,29 @@ def _first_difference(stored: dict, now: dict) -> str | None:
     return None
 
 
-def check_output_dir(out: Path) -> None:
-    """``out`` is absent, empty or a feature table hyprog wrote (module docstring)."""
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise InputError(f"{out}: exists and is not a directory; choose another output")
-    if not any(p for p in out.iterdir() if not p.name.startswith(".")):
-        return
-    if not datasets.written_by_hyprog(out):
-        raise InputError(f"{out}: exists and holds files hyprog did not write; choose another"
-                         " output (a feature table is written into a new or empty directory)")
-    if "calibration" not in datasets.read_metadata(out):
-        raise InputError(f"{out}: holds a dataset, not a feature table (its metadata has no"
-                         " 'calibration' entry); choose another output")
+def is_feature_table(path: Path) -> bool:
+    """``path`` is a feature table hyprog wrote: a hyprog dataset whose metadata has the
+    ``calibration`` entry."""
+    return datasets.written_by_hyprog(path) and "calibration" in datasets.read_metadata(path)
+
+
+#: A feature table (the ownership rule's kind): written into unit by unit and resumed, never
+#: replaced (:mod:`engine_model.runtime.ownership`).
+FEATURE_TABLE = runtime.OutputKind("a feature table (hyprog calibrate's output)",
+                                   directory=True, ours=is_feature_table, resumed=True)
+
+
+def check_output_dir(out: Path, inputs=()) -> None:
+    """``out`` is absent, empty or a feature table hyprog wrote, and none of ``inputs``
+    (module docstring; the ownership rule)."""
+    runtime.check_output(out, FEATURE_TABLE, inputs=inputs)
+
+
+def input_record(df: pd.DataFrame, unit: int, sensors) -> dict:
+    """What a feature table records of one unit's input: unit, rows, sensors used and the
+    fingerprint of its rows (:func:`engine_model.datasets.fingerprint.rows_fingerprint`)."""
+    return {"unit": int(unit), "rows": int(len(df)), "sensors": list(sensors),
+            "sha256": rows_fingerprint(df)}
 
 
 def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | None) -> None:
@@ -423,9 +380,10 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
         return _calibrate(run, source, df_all, meta, calib_meta, lengths, records, None, jobs,
                           scheduler, keep_results, progress, t0)
     out = Path(out)
-    check_output_dir(out)
+    inputs = () if source is None else (source,)
+    check_output_dir(out, inputs)
     with runtime.output_lock(out):
-        check_output_dir(out)  # again, now that no other writer can change it
+        check_output_dir(out, inputs)  # again, now that no other writer can change it
         runtime.remove_stale_temporaries(out)
         done_before = set(datasets.written_units(out))
         for u in sorted(done_before):  # the folder holds one set of settings (and input)
@@ -441,7 +399,7 @@ def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
     """Read and check every unit once, before any output is touched (module docstring):
     :func:`series.prepare_unit` and, with ``check_data``, :func:`unit_check.check_units`
     (against the model with ``effects``). Returns unit -> its input record
-    (:func:`fingerprint.input_record`)."""
+    (:func:`input_record`)."""
     records, model = {}, None
     for u, frame in _units_of(data, df_all, lengths):
         series = prepare_unit(frame, setup, source)  # bad input: an error before any work
@@ -457,20 +415,12 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
                keep_results, progress, t0) -> FleetRun:
     """Estimate the units of ``todo`` and write each to ``out`` as it is done."""
     setup, method, options = run.setup, run.method, run.options
-    if scheduler is not None:
-        ex = _Dask(scheduler, jobs)
-        n_workers, threads = ex.n_workers, 1
-    elif jobs > 1 and todo:
-        ex = _Processes(jobs)
-        n_workers, threads = jobs, 1
-    else:
-        ex = _Serial()
-        n_workers, threads = 1, None
-    run.workers = n_workers
+    ex = executor(scheduler, jobs if todo else 1)  # serial, worker processes or Dask
+    run.workers = ex.n_workers
     tasks = []
-    for group in plan_tasks(todo, method, n_workers) if todo else []:
+    for group in plan_tasks(todo, method, ex.n_workers) if todo else []:
         task = {"method": method, "setup": setup, "options": options, "units": group,
-                "threads": threads, "source": source, "effects": run.effects}
+                "threads": ex.worker_threads, "source": source, "effects": run.effects}
         if df_all is None:
             task["path"] = source
         else:
@@ -478,8 +428,8 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
             task["frames"] = [frames[u] for u in group]
         tasks.append(task)
     done = 0
-    try:
-        for batch in ex.run(tasks):
+    with ex:  # closed after the work, aborted (workers ended) on an error or an interrupt
+        for batch in ex.map(run_task, tasks):
             for u, feats, res in batch:
                 if out is not None:
                     unit_meta = {**meta, "calibration": {**calib_meta, "input": records[u]}}
@@ -496,10 +446,6 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
                 done += 1
                 if progress is not None:
                     progress(done, len(todo))
-    except BaseException:
-        ex.abort()
-        raise
-    ex.close()
     # in unit order, not in the order the workers finished: the same run reports the same
     run.units = {u: run.units[u] for u in sorted(run.units)}
     run.warnings = [w for rec in run.units.values() for w in rec["warnings"]]

@@ -5,15 +5,12 @@ commands take (``--units``, lists, ``--format``)."""
 from __future__ import annotations
 
 import json
-import math
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Annotated
 
 import typer
-
-from engine_model.runtime.critical import in_critical_section
 
 EXIT_FAILED = 1  # a computation failed (no convergence)
 EXIT_USAGE = 2  # bad input or usage (cli.main docstring: the exit-code rule)
@@ -24,6 +21,15 @@ QUIET_HELP = ("No progress bars or status lines on stderr; errors and warnings a
 #: ``--quiet``, the same on every command (scripts pass it uniformly): a command's parameter
 #: ``quiet: Quiet = False``.
 Quiet = Annotated[bool, typer.Option("--quiet", help=QUIET_HELP)]
+
+OVERWRITE_HELP = ("Replace --out even when hyprog did not write it (a file or folder of other "
+                  "data), or when it holds files hyprog did not write (they are deleted). "
+                  "Without it only hyprog's own earlier output is replaced. Never replaces a "
+                  "special file (pipe, device) or what the command reads.")
+
+#: ``--overwrite``, the same on every command that replaces its output (the ownership rule,
+#: :mod:`engine_model.runtime.ownership`): a parameter ``overwrite: Overwrite = False``.
+Overwrite = Annotated[bool, typer.Option("--overwrite", help=OVERWRITE_HELP)]
 
 
 class CliError(Exception):
@@ -171,10 +177,10 @@ def terminate_as_exit() -> Iterator[None]:
     ``finally`` and ``except`` blocks it meets, which must finish their clean-up
     undisturbed). A further Ctrl-C of the user is treated the same way: clean-up is never cut
     short (SIGKILL or Ctrl-\\ end the process at once). A signal that arrives while the block
-    is being left is recorded and raises nothing, and one inside a critical section (a lock
-    being taken, a folder being swapped: :mod:`engine_model.runtime.critical`) is raised just
-    after it. Worker processes are spawned, not forked, so none inherits the handlers or the
-    thread."""
+    is being left is recorded and raises nothing; one inside a critical section (a lock
+    being taken, a folder being swapped) reaches this handler only after the section, which
+    holds it back itself (:mod:`engine_model.runtime.critical`). Worker processes are spawned,
+    not forked, so none inherits the handlers or the thread."""
     import signal
     import threading
     import time
@@ -196,12 +202,6 @@ def terminate_as_exit() -> Iterator[None]:
         if leaving:
             if not TERMINATED:
                 TERMINATED.append(signum)
-            return
-        if in_critical_section():  # a lock being taken, a folder being swapped: the
-            if not TERMINATED:     # watcher raises it just after (engine_model.datasets.
-                TERMINATED.append(signum)  # critical)
-                watcher.start()
-            retry[0] = False
             return
         if TERMINATED:  # the watcher's resend, or the user's next Ctrl-C
             retry[0] = False
@@ -279,21 +279,9 @@ def check_choice(value: str, option: str, choices: Sequence[str]) -> str:
     return value
 
 
-def plain(v):
-    """A JSON-ready Python scalar: NaN and infinities become null."""
-    if hasattr(v, "item"):
-        v = v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
-
-
 def echo_json(obj):
-    def walk(o):
-        if isinstance(o, dict):
-            return {str(k): walk(v) for k, v in o.items()}
-        if isinstance(o, (list, tuple)):
-            return [walk(v) for v in o]
-        return plain(o)
+    """Print ``obj`` as indented JSON (:func:`engine_model.datasets.jsonable.jsonable`: numpy
+    values as Python numbers, NaN and infinities as null)."""
+    from engine_model.datasets.jsonable import jsonable
 
-    typer.echo(json.dumps(walk(obj), indent=2, allow_nan=False))
+    typer.echo(json.dumps(jsonable(obj), indent=2, allow_nan=False))

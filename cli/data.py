@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, Quiet, console, echo_json, user_errors
+from cli.common import CliError, Overwrite, Quiet, console, echo_json, user_errors
 
 app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5); import C-MAPSS.",
                   no_args_is_help=True, pretty_exceptions_enable=False)
@@ -63,14 +63,14 @@ def import_cmapss(
                     ] = None,
     rul: Annotated[Path | None, typer.Option("--rul", help="RUL_FD00x.txt (with --test).")
                    ] = None,
-    overwrite: Annotated[bool, typer.Option(
-        "--overwrite", help="Replace --out even when hyprog did not write it.")] = False,
+    overwrite: Overwrite = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
     quiet: Quiet = False,
 ):
     """Read a C-MAPSS (2008) subset into a hyprog parquet dataset (N-CMAPSS names, alt in ft,
     RUL per cycle; test unit u becomes unit 1000 + u). Written atomically; an existing --out
-    is replaced only when hyprog wrote it (or with --overwrite).
+    is replaced only when it is a dataset hyprog wrote that holds nothing else (or with
+    --overwrite); never the files it reads.
 
     Example: hyprog data import-cmapss train_FD002.txt --out fd002
     """
@@ -80,10 +80,11 @@ def import_cmapss(
         if (test is None) != (rul is None):
             raise CliError("give --test and --rul together (the RUL file belongs to the test"
                            " file)")
-        datasets.check_dataset_output(out, directory=True, overwrite=overwrite)
+        inputs = (train, test, rul)
+        datasets.check_dataset_output(out, directory=True, overwrite=overwrite, inputs=inputs)
         df, meta = datasets.read_cmapss(train, test, rul)
         with runtime.output_lock(out):
-            path = datasets.write_parquet(df, out, meta, overwrite=overwrite)
+            path = datasets.write_parquet(df, out, meta, overwrite=overwrite, inputs=inputs)
     rep = {"out": str(path), "rows": len(df), "dev_units": meta["dev_units"],
            "test_units": meta["test_units"], "test_unit_offset": meta["test_unit_offset"]}
     if as_json:

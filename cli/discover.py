@@ -10,6 +10,7 @@ import typer
 
 from cli.common import (
     CliError,
+    Overwrite,
     Quiet,
     console,
     echo_json,
@@ -60,10 +61,13 @@ def discover(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
+    overwrite: Overwrite = False,
     quiet: Quiet = False,
 ):
     """Screen every candidate effect with score tests, confirm and add the significant
-    ones, and report what remains (verdict, effects with uncertainty, before/after).
+    ones, and report what remains (verdict, effects with uncertainty, before/after). An
+    existing --out is replaced only when it is an earlier report that holds nothing else (or
+    with --overwrite); never the DATA it reads.
 
     Example: hyprog discover data_samples/tiny --method ukf --out discover-report
     """
@@ -91,7 +95,7 @@ def discover(
                                seed=seed)
         check_names(opts.candidates)
         unit_list = parse_units(units)
-        check_report_target(out)  # before the run, not after it
+        check_report_target(out, overwrite, (data,))  # before the run, not after it
         with output_lock(out):  # one writer per report; released on Ctrl-C / SIGTERM too
             df, _meta = read_dataset(data, units=unit_list)
             if "unit" not in df.columns:
@@ -104,7 +108,7 @@ def discover(
             say = (lambda msg: err.print(msg)) if show else None
             result = run(frames, setup, opts, base_model=get_model(quiet or as_json),
                          source=data, progress=say)
-            write_report(result, out)
+            write_report(result, out, overwrite, (data,))
     if as_json:
         echo_json(report_dict(result))
         return

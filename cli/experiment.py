@@ -83,7 +83,7 @@ def paper(
         df, meta = read_dataset(data)
         log = (lambda s: None) if as_json or quiet else \
             (lambda s: console(stderr=True).print(s))
-        res = run_experiment(df, meta, out, cfg, log=log, source=str(data))
+        res = run_experiment(df, meta, out, cfg, log=log, source=str(data), inputs=(data,))
     if as_json:
         echo_json(res)
         return

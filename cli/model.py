@@ -29,7 +29,6 @@ from cli.common import (
     echo_json,
     fail,
     get_model,
-    plain,
     user_errors,
 )
 
@@ -43,9 +42,18 @@ MAX_FAILURE_ROWS = 20
 
 
 # ----------------------------------------------------------------------------- helpers
+def _number(v):
+    """A Python number (or None for NaN) from a numpy or Python value
+    (:func:`engine_model.datasets.jsonable.jsonable`; imported on use: ``--help`` reads no
+    data library)."""
+    from engine_model.datasets.jsonable import jsonable
+
+    return jsonable(v)
+
+
 def _fmt(v, digits: int | None = None) -> str:
     """Numbers for tables: about six significant figures, fixed point."""
-    v = plain(v)
+    v = _number(v)
     if v is None:
         return "-"
     if isinstance(v, bool):
@@ -57,14 +65,14 @@ def _fmt(v, digits: int | None = None) -> str:
 
 
 def _fmt_err(e) -> str:
-    e = plain(e)
+    e = _number(e)
     if e is None:
         return "-"
     return "0.00" if abs(e) < 0.005 else f"{e:+.2f}"
 
 
 def _err_style(e) -> str:
-    e = plain(e)
+    e = _number(e)
     if e is None:
         return "red"
     return "green" if abs(e) < 2.0 else "yellow" if abs(e) < 5.0 else "red"

@@ -59,7 +59,7 @@ def pipeline(
         err = console(stderr=True)
         quiet = quiet or as_json or not err.is_terminal  # progress on a terminal only
         log = (lambda msg: None) if quiet else (lambda msg: err.print(msg, soft_wrap=True))
-        res = run_pipeline(out, cfg, data, quiet=quiet, log=log)
+        res = run_pipeline(out, cfg, data, quiet=quiet, log=log, inputs=(config,))
     if as_json:
         echo_json(res)
         return

@@ -1,18 +1,19 @@
-"""``hyprog predict MODEL_DIR DATA --out FILE``: RUL per sample and per cycle."""
+"""``hyprog predict MODEL_DIR DATA --out FILE``: RUL per sample and per cycle.
+
+The two outputs (``--out`` and its ``<stem>.per_cycle<suffix>`` sidecar) follow the ownership
+rule (:mod:`engine_model.runtime.ownership`; :func:`prognostics.outputs.write_predictions`):
+checked before the model is loaded, written under the lock of each, atomically and together.
+"""
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from cli.common import Quiet, console, echo_json, parse_units, progress_bar, user_errors
-
-
-def per_cycle_path(out: Path) -> Path:
-    """``preds.csv`` -> ``preds.per_cycle.csv`` (same format as ``out``)."""
-    return out.with_name(f"{out.stem}.per_cycle{out.suffix}")
+from cli.common import Overwrite, Quiet, console, echo_json, parse_units, progress_bar, user_errors
 
 
 def predict(
@@ -25,34 +26,39 @@ def predict(
                      ] = None,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
+    overwrite: Overwrite = False,
     quiet: Quiet = False,
 ):
     """Predict the RUL of every sample that ends a full window (columns RUL_pred, RUL_std for
     an ensemble, RUL_lower / RUL_upper with a conformal interval) and its per-cycle mean,
     min and max. A unit shorter than the window is left-padded with its first sample and
-    gets one prediction, at its last sample.
+    gets one prediction, at its last sample. An existing --out (or its per-cycle sidecar) is
+    replaced only when it is a prediction table hyprog wrote (or with --overwrite); never the
+    model or the data it reads, never a special file (pipe, device).
 
     Example: hyprog predict models/cnn new_flights.parquet --out rul.csv
     """
     from cli.evaluate import load_model_warned
     from engine_model.datasets import read_dataset
+    from engine_model.runtime import check_output, output_lock
     from prognostics.metrics import per_cycle
-    from prognostics.outputs import write_table
+    from prognostics.outputs import prediction_targets, write_predictions
 
     with user_errors(data):
-        rul = load_model_warned(model_dir)
-        df, _ = read_dataset(data)
-        with progress_bar("predicting (windows x members)", quiet or as_json) as update:
-            pred = rul.predict(df, parse_units(units), device, source=str(data),
-                               progress=update)
-        pc = per_cycle(pred)
-        write_table(out, pred)
-        try:
-            write_table(per_cycle_path(out), pc)
-        except BaseException:
-            out.unlink(missing_ok=True)  # both files or neither
-            raise
-    rep = {"out": str(out), "per_cycle": str(per_cycle_path(out)), "samples": len(pred),
+        inputs = (model_dir, data)
+        for target, kind in prediction_targets(out):  # before any work
+            check_output(target, kind, overwrite, inputs)
+        with ExitStack() as locks:  # one writer per output, released on Ctrl-C too
+            for target, _ in prediction_targets(out):
+                locks.enter_context(output_lock(target))
+            rul = load_model_warned(model_dir)
+            df, _ = read_dataset(data)
+            with progress_bar("predicting (windows x members)", quiet or as_json) as update:
+                pred = rul.predict(df, parse_units(units), device, source=str(data),
+                                   progress=update)
+            pc = per_cycle(pred)
+            out, pc_path = write_predictions(pred, pc, out, overwrite, inputs)
+    rep = {"out": str(out), "per_cycle": str(pc_path), "samples": len(pred),
            "cycles": len(pc), "units": sorted(int(u) for u in pred["unit"].unique()),
            "interval": rul.conformal is not None}
     if as_json:

@@ -7,7 +7,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, check_choice, console, echo_json, parse_units, user_errors
+from cli.common import (
+    CliError,
+    Overwrite,
+    check_choice,
+    console,
+    echo_json,
+    parse_units,
+    user_errors,
+)
 
 # engine_model.simulator.flight_profiles: the recorded part of a flight
 RECORDS = ("above_10kft", "all")
@@ -27,10 +35,7 @@ def simulate(
     fmt: Annotated[str, typer.Option("--format", help="parquet or h5.")] = "parquet",
     record: Annotated[str | None, typer.Option(
         "--record", help="above_10kft (N-CMAPSS, default) or all.")] = None,
-    overwrite: Annotated[bool, typer.Option(
-        "--overwrite", help="Replace --out even when hyprog did not write it (a folder or "
-        "file of other data); without it only a hyprog dataset of the same format is "
-        "replaced.")] = False,
+    overwrite: Overwrite = False,
     scheduler: Annotated[str | None, typer.Option(
         "--scheduler", help="Simulate the units on a Dask cluster: its scheduler address "
         "(tcp://host:port; the workers need hyprog installed, this process writes --out), "

@@ -7,7 +7,15 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, Quiet, console, echo_json, parse_units, user_errors
+from cli.common import (
+    CliError,
+    Overwrite,
+    Quiet,
+    console,
+    echo_json,
+    parse_units,
+    user_errors,
+)
 
 INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta), groups joined "
                "by '+' (w, xs, xs_hat, xv, xv_hat, theta_hat, theta), explicit columns "
@@ -44,11 +52,13 @@ def train(
     alpha: Annotated[float, typer.Option("--alpha", help="Interval miscoverage (0.1: 90 %).")
                      ] = 0.1,
     device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
+    overwrite: Overwrite = False,
     quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Train the paper's FNN or 1-D CNN on a feature table and save it (weights, scaler,
-    inputs, interval) to MODEL_DIR.
+    inputs, interval) to MODEL_DIR. An existing MODEL_DIR is replaced only when it is a model
+    hyprog wrote that holds nothing else (or with --overwrite); never the FEATURES it reads.
 
     Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
     """
@@ -61,7 +71,7 @@ def train(
     with user_errors(features):
         if ensemble < 1:
             raise CliError(f"--ensemble {ensemble}: expected >= 1")
-        check_model_target(out)  # before hours of training, not after
+        check_model_target(out, overwrite, (features,))  # before hours of training
         by_seed = val_units is not None and val_units.strip().lower() == "seed"
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
@@ -75,7 +85,7 @@ def train(
             df, meta = read_dataset(features)
             rul = fit(df, meta, cfg, seeds=range(seed, seed + ensemble),
                       quiet=quiet or as_json, source=str(features))
-            save_model(rul, out)  # atomic: a killed run leaves no model directory
+            save_model(rul, out, overwrite, (features,))  # atomic: a killed run leaves none
     rep = {"out": str(out), "model": rul.config.model, "inputs": rul.config.inputs,
            "columns": list(rul.columns), "window": rul.window, "max_rul": rul.config.max_rul,
            "parameters": rul.members[0].parameters,

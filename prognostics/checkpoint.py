@@ -26,9 +26,13 @@ A model written by another hyprog *version* with the same ``format_version`` loa
 that does not touch it does not strand trained models, but the user hears about it.
 
 Safetensors (Hugging Face) stores raw tensors and a JSON header; reading it executes no code,
-unlike ``torch.load`` of a pickle. Writing is atomic: the directory is built as a hidden
-temporary sibling and renamed into place; an existing target is replaced only if it is a
-hyprog model directory (or empty), and only after the new one is complete.
+unlike ``torch.load`` of a pickle. Writing is atomic (:mod:`engine_model.runtime.atomic`):
+the directory is built as a hidden temporary sibling and renamed into place, only after the
+new one is complete. An existing target is replaced by the ownership rule
+(:mod:`engine_model.runtime.ownership`, kind :data:`MODEL_DIRECTORY`): an empty directory or a
+hyprog model directory (its ``model.json`` is a manifest of this format) holding nothing but
+the manifest and the weights files it names; anything else, a user's ``NOTES.md`` in the model
+folder included, only with ``overwrite`` (``--overwrite``); never what the command reads.
 """
 
 from __future__ import annotations
@@ -36,7 +40,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -45,13 +48,8 @@ from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
 from engine_model.datasets import hyprog_version
-from engine_model.runtime.atomic import (
-    default_mode,
-    remove_path,
-    remove_stale_temporaries_of,
-    swap_into_place,
-    temporary_prefix,
-)
+from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.ownership import OutputKind, check_output
 from engine_model.validation import InputError
 
 from .conformal import SplitConformal
@@ -94,41 +92,51 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
     return body, files
 
 
-def _replaceable(path: Path) -> bool:
-    return (path / MANIFEST).is_file() or (path.is_dir() and not any(path.iterdir()))
-
-
-def check_model_target(path: str | os.PathLike) -> Path:
-    """``path`` may receive a model directory: it does not exist, or it is a hyprog model
-    directory or an empty directory (which :func:`save_model` replaces). Call it before a long
-    training so that a bad ``--out`` fails first, not after hours."""
-    target = Path(path)
-    if target.exists() and (not target.is_dir() or not _replaceable(target)):
-        raise InputError(f"{target}: exists and is not a hyprog model directory; not replacing")
-    if target.parent.exists() and not target.parent.is_dir():
-        raise InputError(f"{target.parent}: is a file, not a directory")
-    return target
-
-
-def save_model(model, path: str | os.PathLike) -> Path:
-    """Write ``model`` to the directory ``path`` atomically (module docstring)."""
-    target = check_model_target(path)
-    body, files = _manifest(model)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    # what a writer killed here before (SIGKILL, power loss) left behind; a running writer's
-    # temporaries are kept (their names carry host and process id)
-    remove_stale_temporaries_of(target)
-    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(target.name), dir=target.parent))
+def _manifest_of(path: Path) -> dict | None:
+    """The manifest of the directory ``path`` when it is one of this format, else None."""
     try:
+        body = json.loads((path / MANIFEST).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return body if isinstance(body, dict) and body.get("format") == FORMAT else None
+
+
+def is_model_directory(path: Path) -> bool:
+    """``path`` is a model directory hyprog wrote (its ``model.json`` is a manifest of this
+    format): what :func:`save_model` may replace."""
+    return _manifest_of(path) is not None
+
+
+def model_layout(path: Path) -> list[str]:
+    """The files hyprog wrote in the model directory ``path``: the manifest and the weights
+    files it names."""
+    members = (_manifest_of(path) or {}).get("members")
+    names = [m.get("file") for m in members if isinstance(m, dict)] \
+        if isinstance(members, list) else []
+    return [MANIFEST, *(n for n in names if isinstance(n, str) and n and Path(n).name == n)]
+
+
+#: A model directory (the ownership rule's kind, module docstring).
+MODEL_DIRECTORY = OutputKind("a hyprog model directory", directory=True,
+                             ours=is_model_directory, layout=model_layout)
+
+
+def check_model_target(path: str | os.PathLike, overwrite: bool = False,
+                       inputs=()) -> Path:
+    """``path`` may receive a model directory (module docstring; ``inputs``: what the command
+    reads). Call it before a long training so that a bad ``--out`` fails first, not after
+    hours."""
+    return check_output(path, MODEL_DIRECTORY, overwrite, inputs)
+
+
+def save_model(model, path: str | os.PathLike, overwrite: bool = False, inputs=()) -> Path:
+    """Write ``model`` to the directory ``path`` atomically (module docstring)."""
+    body, files = _manifest(model)
+    with atomic_output(path, MODEL_DIRECTORY, overwrite, inputs) as tmp:
         for name, blob in files.items():
             (tmp / name).write_bytes(blob)
         (tmp / MANIFEST).write_text(json.dumps(body, indent=1, allow_nan=False) + "\n")
-        tmp.chmod(default_mode(directory=True))
-        swap_into_place(tmp, target)
-    except BaseException:
-        remove_path(tmp)
-        raise
-    return target
+    return Path(path)
 
 
 def _read_manifest(directory: Path) -> dict:

@@ -15,8 +15,10 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.ownership import OWNED_FILE
+
 from .metrics import HORIZON_TOL
-from .outputs import atomic_path
 
 
 def _pyplot():
@@ -29,7 +31,7 @@ def _pyplot():
 
 
 def _save(fig, path) -> None:
-    with atomic_path(path) as tmp:
+    with atomic_output(path, OWNED_FILE) as tmp:
         fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
 
 

@@ -175,7 +175,11 @@ def test_failed_parquet_write_leaves_an_existing_target_untouched(tmp_path, flee
 def test_parquet_overwrite_replaces_the_whole_directory(tmp_path, fleet):
     target = write_parquet(fleet, tmp_path / "fleet", META)
     (target / "stale.txt").write_text("from an older run")
-    write_parquet(fleet[fleet["unit"] == 5], target, {"seed": 2})
+    # a file hyprog did not write is never deleted without overwrite (the ownership rule)
+    with pytest.raises(InputError, match="stale.txt"):
+        write_parquet(fleet[fleet["unit"] == 5], target, {"seed": 2})
+    assert (target / "stale.txt").read_text() == "from an older run"
+    write_parquet(fleet[fleet["unit"] == 5], target, {"seed": 2}, overwrite=True)
     assert sorted(p.name for p in target.iterdir()) == ["unit=5"]
     assert read_metadata(target)["seed"] == 2
     assert siblings(target) == []

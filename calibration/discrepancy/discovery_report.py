@@ -1,8 +1,11 @@
 """The before/after report of :func:`loop.discover`: ``discover.json``, ``discover.md`` and
-``residuals.png`` in one output directory, written atomically (a hidden temporary sibling
-``.<name>.tmp-<host>-<pid>-*`` moved into place; an existing directory is replaced only if it
-is an earlier report, recognised by its ``discover.json``; the temporaries a killed writer left
-are removed by the next one).
+``residuals.png`` in one output directory, written atomically
+(:mod:`engine_model.runtime.atomic`: a hidden temporary sibling moved into place; the
+temporaries a killed writer left are removed by the next one). An existing directory is
+replaced by the ownership rule (:mod:`engine_model.runtime.ownership`, kind
+:data:`REPORT_DIRECTORY`): an earlier report, recognised by its ``discover.json``, holding
+nothing but the report's three files; anything else only with ``--overwrite``; never what the
+command reads.
 
 The PNG shows, for each added effect (or, when something unknown remains, for the channel with
 the most structure), the whitened residual of the channel it changed most against the
@@ -13,42 +16,23 @@ operating variable that residual follows most closely, before (the first null fi
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
-from engine_model.runtime.atomic import (
-    default_mode,
-    remove_path,
-    remove_stale_temporaries_of,
-    swap_into_place,
-    temporary_prefix,
-)
-from engine_model.validation import InputError
+from engine_model.datasets.jsonable import jsonable
+from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.ownership import OutputKind, check_output
 
 from .unknown import BASIS_NAMES, basis
 
 REPORT_JSON = "discover.json"
+REPORT_FILES = (REPORT_JSON, "discover.md", "residuals.png")
 DRIVERS = ("alt", "Mach", "TRA", "T2", "t_flight", "cycle")
 
 
-def _clean(o):
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
-
-
 def report_dict(d) -> dict:
-    return _clean(d.to_dict())
+    return jsonable(d.to_dict())
 
 
 def _fmt(v, nd=3):
@@ -219,33 +203,28 @@ def plot(d, path: Path) -> None:
     plt.close(fig)
 
 
-def check_report_target(out: str | Path) -> Path:
-    """``out`` may receive a report: it does not exist, or it is an earlier report (which
-    :func:`write_report` replaces). Call it before the discovery run so that a bad ``--out``
-    fails first, not after minutes."""
-    out = Path(out)
-    if out.exists() and (not out.is_dir() or not (out / REPORT_JSON).is_file()):
-        raise InputError(f"{out}: exists and is not an earlier discover report; choose "
-                         "another --out")
-    return out
+def is_report(path: Path) -> bool:
+    """``path`` is an earlier report (a directory with ``discover.json``)."""
+    return (path / REPORT_JSON).is_file()
 
 
-def write_report(d, out: str | Path) -> Path:
-    """Write ``discover.json``, ``discover.md`` and ``residuals.png`` into ``out``: built in a
-    hidden temporary sibling and moved into place (:mod:`engine_model.runtime.atomic`)."""
-    import tempfile
+#: A discover report (the ownership rule's kind, module docstring).
+REPORT_DIRECTORY = OutputKind("an earlier discover report", directory=True, ours=is_report,
+                              layout=lambda path: REPORT_FILES)
 
-    out = check_report_target(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temporaries_of(out)
-    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), dir=out.parent))
-    try:
+
+def check_report_target(out: str | Path, overwrite: bool = False, inputs=()) -> Path:
+    """``out`` may receive a report (module docstring; ``inputs``: what the command reads).
+    Call it before the discovery run so that a bad ``--out`` fails first, not after
+    minutes."""
+    return check_output(out, REPORT_DIRECTORY, overwrite, inputs)
+
+
+def write_report(d, out: str | Path, overwrite: bool = False, inputs=()) -> Path:
+    """Write ``discover.json``, ``discover.md`` and ``residuals.png`` into ``out``, atomically
+    (module docstring)."""
+    with atomic_output(out, REPORT_DIRECTORY, overwrite, inputs) as tmp:
         (tmp / REPORT_JSON).write_text(json.dumps(report_dict(d), indent=2, allow_nan=False))
         (tmp / "discover.md").write_text(markdown(d))
         plot(d, tmp / "residuals.png")
-        tmp.chmod(default_mode(directory=True))
-        swap_into_place(tmp, out)
-    except BaseException:
-        remove_path(tmp)
-        raise
-    return out
+    return Path(out)

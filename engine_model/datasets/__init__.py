@@ -9,7 +9,10 @@ module          what is inside
 ``schema``      the table: column groups, canonical order, required columns, integer keys,
                 sorting and normalising a table, column selection
 ``metadata``    the metadata JSON stored with a table (keys, version, sample rate)
-``provenance``  is an existing path a dataset hyprog wrote (what a writer may replace)
+``jsonable``    Python and numpy values as JSON data (every JSON hyprog writes)
+``fingerprint`` what identifies data: hashes of a table's rows, of a table with its
+                metadata, of a dataset's files
+``provenance``  is an existing path a dataset hyprog wrote (the data sets' output kinds)
 ``paths``       format detection (directory / suffix / magic bytes)
 ``parquet``     hyprog parquet, partitioned by unit (the native format)
 ``ncmapss_h5``  the N-CMAPSS h5 layout of the published files

@@ -64,14 +64,16 @@ def read_dataset(path: str | os.PathLike, units: Sequence[int] | None = None,
 
 def write_dataset(df: pd.DataFrame, path: str | os.PathLike,
                   metadata: Mapping[str, Any] | None = None,
-                  format: str | None = None, overwrite: bool = False) -> Path:
+                  format: str | None = None, overwrite: bool = False,
+                  inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Write ``df`` as ``format`` ``"parquet"`` or ``"h5"``; None infers it from the suffix
     (``.h5``/``.hdf5`` -> h5, anything else -> parquet). An existing ``path`` is replaced only
-    when hyprog wrote it or with ``overwrite`` (:mod:`.provenance`)."""
+    when hyprog wrote it or with ``overwrite``, never when it is one of ``inputs``
+    (:mod:`.provenance`)."""
     p = Path(path)
     fmt = format or ("h5" if p.suffix.lower() in H5_SUFFIXES else "parquet")
     if fmt == "parquet":
-        return write_parquet(df, p, metadata, overwrite=overwrite)
+        return write_parquet(df, p, metadata, overwrite=overwrite, inputs=inputs)
     if fmt in ("h5", "hdf5", "ncmapss-h5"):
-        return write_ncmapss_h5(df, p, metadata, overwrite=overwrite)
+        return write_ncmapss_h5(df, p, metadata, overwrite=overwrite, inputs=inputs)
     raise InputError(f"{p}: unknown format {format!r} (expected 'parquet' or 'h5')")

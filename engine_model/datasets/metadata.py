@@ -18,28 +18,13 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..validation import InputError
+from .jsonable import json_default
 
 META_KEY = "hyprog"  # parquet schema-metadata key and h5 root attribute
 SAMPLE_RATE_KEY = "sample_rate_hz"
-
-
-def json_default(obj: Any) -> Any:
-    """``json.dumps`` ``default``: numpy scalars and arrays, sets (sorted) and paths."""
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (set, frozenset)):
-        return sorted(obj)
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
 
 
 def metadata_json(metadata: Mapping[str, Any] | None, source: str) -> str:

@@ -42,7 +42,7 @@ from .metadata import (
     sample_rate,
 )
 from .paths import HDF5_MAGIC, existing_path, file_magic
-from .provenance import written_by_hyprog
+from .provenance import H5_DATASET
 from .schema import (
     INT_KEYS,
     REQUIRED_COLUMNS,
@@ -381,7 +381,8 @@ def _create(f: h5py.File, name: str, data: np.ndarray, compression: str | None) 
 
 def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
                      metadata: Mapping[str, Any] | None = None,
-                     compression: str | None = "gzip", overwrite: bool = False) -> Path:
+                     compression: str | None = "gzip", overwrite: bool = False,
+                     inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Write ``df`` in the N-CMAPSS h5 layout (module doc); atomic (temp file + os.replace).
 
     ``metadata['dev_units']`` / ``['test_units']`` choose the split (a unit in neither is an
@@ -400,8 +401,7 @@ def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
     _warn_dropped(list(table.columns), layout, source)
     _warn_if_t_lost(table, sample_rate(meta, DEFAULT_H5_RATE_HZ), source)
     var_names = {g: v for g, v, _ in H5_GROUPS}
-    with atomic_output(path, directory=False, overwrite=overwrite,
-                       ours=written_by_hyprog, want="a file") as tmp:
+    with atomic_output(path, H5_DATASET, overwrite, inputs) as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs[META_KEY] = metadata_json(meta, source)
             for group, names in layout.items():

@@ -36,17 +36,12 @@ import pyarrow as pa
 import pyarrow.dataset as pds
 import pyarrow.parquet as pq
 
-from engine_model.runtime.atomic import (
-    atomic_output,
-    remove_path,
-    swap_into_place,
-    temporary_prefix,
-)
+from engine_model.runtime.atomic import atomic_output
 
 from ..validation import InputError, check_columns
 from .metadata import META_KEY, metadata_for_write, metadata_json, parse_metadata
-from .paths import PARQUET_MAGIC, existing_path, file_magic
-from .provenance import written_by_hyprog
+from .paths import PARQUET_MAGIC, PARQUET_PART, existing_path, file_magic
+from .provenance import PARQUET_DATASET, UNIT_PARTITION
 from .schema import (
     REQUIRED_COLUMNS,
     SOURCE_ROW,
@@ -57,7 +52,6 @@ from .schema import (
     selected_columns,
 )
 
-PARQUET_PART = "part-0.parquet"
 PARQUET_COMPRESSION = "zstd"
 
 
@@ -84,13 +78,15 @@ def _write_part(part: pd.DataFrame, file: Path, meta_json: bytes) -> None:
 
 
 def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
-                  metadata: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
+                  metadata: Mapping[str, Any] | None = None, overwrite: bool = False,
+                  inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Write ``df`` as a parquet directory partitioned by unit (``unit=<n>/part-0.parquet``).
 
     Rows are sorted by unit, cycle, t; ``metadata`` is stored as JSON under the schema metadata
     key ``hyprog`` of every part file. The directory appears only when complete (see
     :mod:`engine_model.runtime.atomic`); an existing ``path`` is replaced only when hyprog wrote it
-    or with ``overwrite`` (:mod:`engine_model.runtime.ownership`). Returns the path written.
+    or with ``overwrite``, never when it is one of the command's ``inputs``
+    (:mod:`engine_model.runtime.ownership`). Returns the path written.
     """
     path = Path(path)
     source = str(path)
@@ -98,8 +94,7 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     units = table["unit"].to_numpy()
     body = table.drop(columns="unit")
-    with atomic_output(path, directory=True, overwrite=overwrite,
-                       ours=written_by_hyprog, want="a parquet directory") as tmp:
+    with atomic_output(path, PARQUET_DATASET, overwrite, inputs) as tmp:
         for unit, rows in _unit_slices(units):
             _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
     return path
@@ -123,8 +118,7 @@ def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | N
     source = str(path)
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     written: set[int] = set()
-    with atomic_output(path, directory=True, overwrite=overwrite,
-                       ours=written_by_hyprog, want="a parquet directory") as tmp:
+    with atomic_output(path, PARQUET_DATASET, overwrite) as tmp:
         def write_unit(df: pd.DataFrame) -> None:
             table = prepare_for_write(df, source)
             units = table["unit"].to_numpy()
@@ -161,8 +155,9 @@ def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
     temporary name (which readers ignore) and renamed into place when complete, so an
     interrupted writer leaves every unit either complete or absent: the partition directory
     ``unit=<n>`` is built as a hidden temporary directory and renamed into place, so there is
-    never an empty ``unit=<n>/``. An existing partition of the same unit is replaced. Returns
-    the part file."""
+    never an empty ``unit=<n>/`` (:func:`engine_model.runtime.atomic.atomic_output`, kind
+    :data:`.provenance.UNIT_PARTITION`). An existing partition of the same unit is replaced
+    when it holds nothing but its part file. Returns the part file."""
     path = Path(path)
     source = str(path)
     table = prepare_for_write(df, source)
@@ -171,14 +166,8 @@ def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
         raise InputError(f"{source}: write_unit_part takes one unit, got {len(units)}")
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     unit_dir = path / f"unit={int(units[0])}"
-    path.mkdir(parents=True, exist_ok=True)
-    tmp = path / f"{temporary_prefix(unit_dir.name)}{os.urandom(4).hex()}"
-    try:
+    with atomic_output(unit_dir, UNIT_PARTITION) as tmp:
         _write_part(table.drop(columns="unit"), tmp / PARQUET_PART, meta_json)
-        swap_into_place(tmp, unit_dir)
-    except BaseException:
-        remove_path(tmp)
-        raise
     return unit_dir / PARQUET_PART
 
 

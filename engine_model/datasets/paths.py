@@ -16,6 +16,7 @@ H5_SUFFIXES = (".h5", ".hdf5", ".he5")
 PARQUET_SUFFIXES = (".parquet", ".pq")
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 PARQUET_MAGIC = b"PAR1"
+PARQUET_PART = "part-0.parquet"  # the one part file of a unit's partition (:mod:`.parquet`)
 
 
 def existing_path(path: str | os.PathLike) -> Path:

@@ -1,9 +1,12 @@
-"""Is an existing path a dataset hyprog wrote? (the data sets' recogniser for
-:func:`engine_model.runtime.ownership.check_output`).
+"""Is an existing path a dataset hyprog wrote? The data sets' output kinds for the ownership
+rule (:mod:`engine_model.runtime.ownership`).
 
 A parquet directory whose part files carry the ``hyprog`` metadata, or an h5 / parquet file
 with it (:data:`.metadata.META_KEY`), is a dataset hyprog wrote: a writer of the same kind may
-replace it as a whole. :func:`check_dataset_output` is the ownership rule with this recogniser.
+replace it as a whole. In a parquet directory hyprog writes only ``unit=<n>/part-0.parquet``
+(:func:`dataset_layout`); any other entry is the user's and makes a replacement a refusal
+unless ``--overwrite``. :data:`PARQUET_DATASET` and :data:`H5_DATASET` are the two kinds;
+:func:`check_dataset_output` is the ownership rule for either.
 """
 
 from __future__ import annotations
@@ -11,10 +14,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from engine_model.runtime.ownership import check_output
+from engine_model.runtime.ownership import OutputKind, check_output
 
 from .metadata import META_KEY
-from .paths import HDF5_MAGIC, PARQUET_MAGIC
+from .paths import HDF5_MAGIC, PARQUET_MAGIC, PARQUET_PART
 
 PART_GLOB = "unit=*/*.parquet"
 
@@ -63,12 +66,30 @@ def written_by_hyprog(path: Path) -> bool:
     return False
 
 
-def check_dataset_output(path: str | os.PathLike, directory: bool,
-                         overwrite: bool = False) -> Path:
+def dataset_layout(path: Path) -> list[str]:
+    """The files hyprog writes in a parquet dataset directory: ``unit=<n>/part-0.parquet``."""
+    return [f"{d.name}/{PARQUET_PART}" for d in path.glob("unit=*")
+            if d.name[5:].lstrip("-").isdigit() and (d / PARQUET_PART).is_file()]
+
+
+#: A hyprog parquet dataset (a directory partitioned by unit).
+PARQUET_DATASET = OutputKind("a hyprog parquet dataset", directory=True, ours=written_by_hyprog,
+                             layout=dataset_layout)
+#: One unit's partition ``unit=<n>/`` inside a dataset being written unit by unit (a resumable
+#: writer's): replaced when it holds its part file and nothing else.
+UNIT_PARTITION = OutputKind("a unit's partition", directory=True,
+                            ours=lambda path: (path / PARQUET_PART).is_file(),
+                            layout=lambda path: [PARQUET_PART])
+#: A dataset file hyprog wrote (N-CMAPSS h5).
+H5_DATASET = OutputKind("a hyprog dataset file", directory=False, ours=written_by_hyprog)
+
+
+def check_dataset_output(path: str | os.PathLike, directory: bool, overwrite: bool = False,
+                         inputs=()) -> Path:
     """:func:`~engine_model.runtime.ownership.check_output` for a dataset: a parquet
     directory (``directory=True``) or an h5 file that hyprog wrote may be replaced."""
-    return check_output(path, directory, overwrite, ours=written_by_hyprog,
-                        want="a parquet directory" if directory else "a file")
+    return check_output(path, PARQUET_DATASET if directory else H5_DATASET, overwrite, inputs)
 
 
-__all__ = ["check_dataset_output", "written_by_hyprog"]
+__all__ = ["H5_DATASET", "PARQUET_DATASET", "UNIT_PARTITION", "check_dataset_output",
+           "dataset_layout", "written_by_hyprog"]

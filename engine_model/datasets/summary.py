@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 
 from ..validation import check_columns
-from .metadata import json_default, sample_rate
+from .jsonable import json_default
+from .metadata import sample_rate
 from .schema import INT_KEYS, column_groups
 
 

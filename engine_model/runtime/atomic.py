@@ -1,89 +1,59 @@
-"""Atomic output: nothing half-written is ever visible under the target's name.
+"""Atomic output: nothing half-written is ever visible under the target's name, and a failed
+write leaves the previous output in place. The one implementation of it: every writer of hyprog
+(datasets, feature tables, model folders, reports, predictions, run records, figures) goes
+through :func:`atomic_output` / :func:`atomic_outputs`.
 
 Atomicity
 ---------
-Writers build the output in a temporary sibling (``.<name>.tmp-<host>-<pid>-<random>``)
-and move it into place with ``os.replace`` only after everything was written; an existing
-target is replaced then (only one that :func:`.ownership.check_output` allows: what hyprog
-wrote, or anything with ``overwrite=True``), and on any exception the temporary is removed
-and the target is left as it was. A writer killed before it could clean up leaves only hidden
-``.<name>.tmp-*`` entries, which readers ignore. The temporary's name holds the writer's host
-and process id, so :func:`remove_stale_temporaries` deletes only those whose writer is gone
-(a process of this host that no longer runs), never another running writer's file.
+Writers build the output in a temporary sibling (``.<name>.tmp-<host>-<pid>-<random>``,
+:mod:`.names`) and move it into place with ``os.replace`` only after everything was written;
+an existing target is replaced then (only one that the ownership rule allows, checked before
+the work and again just before the swap: :func:`.ownership.check_output`), and on any
+exception the temporary is removed and the target is left as it was. Several outputs that
+belong together (``predict``'s table and its ``.per_cycle`` sidecar) are swapped together:
+both new or both old (:func:`swap_all_into_place`). A writer killed before it could clean up
+leaves only hidden ``.<name>.tmp-*`` entries, which readers ignore. The temporary's name holds
+the writer's host and process id, so :func:`remove_stale_temporaries` deletes only those whose
+writer is gone (a process of this host that no longer runs), never another running writer's
+file.
 
-Replacing a folder takes two renames (the old target aside to ``.<name>.old-<host>-<pid>-*``,
-the new one in); a writer killed between them leaves the previous output only in that backup,
-so a stale backup is moved back under its name when the name is free and deleted otherwise
-(:func:`remove_stale_temporaries_of`, :func:`remove_stale_temporaries`).
+Replacing takes two renames per output (the old target aside to
+``.<name>.old-<host>-<pid>-*``, the new one in); a writer killed between them leaves the
+previous output only in that backup, so a stale backup is moved back under its name when the
+name is free and deleted otherwise (:func:`remove_stale_temporaries_of`,
+:func:`remove_stale_temporaries`). Of a group killed half-way, each output is then the old or
+the new one; none is lost.
+
+Cleaning after a killed run is this module's job alone: a command that resumes in a folder
+calls :func:`remove_stale_temporaries` on it under its lock, a writer of one output
+:func:`remove_stale_temporaries_of` (done by :func:`atomic_outputs` itself).
 """
 
 from __future__ import annotations
 
 import os
-import re
 import shutil
-import socket
 import tempfile
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
 from .critical import critical_section
-from .ownership import check_output
-
-TEMPORARY_GLOB = ".*.tmp-*"
-TMP_MARK = ".tmp-"
-BACKUP_GLOB = ".*.old-*"
-OLD_MARK = ".old-"
-
-
-def host_name() -> str:
-    """This machine's name as it appears in temporaries and lock files (no '-' or '/')."""
-    return socket.gethostname().replace("-", "_").replace("/", "_") or "localhost"
-
-
-def temporary_prefix(name: str) -> str:
-    """``.<name>.tmp-<host>-<pid>-``: the prefix of this process's temporaries of ``name``."""
-    return f".{name}{TMP_MARK}{host_name()}-{os.getpid()}-"
-
-
-def pid_alive(pid: int) -> bool:
-    """True when a process ``pid`` runs on this machine (or exists but is not ours)."""
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-#: A hyprog temporary or backup: ``.<name>.tmp-<host>-<pid>-<random>[<suffix>]`` or
-#: ``.<name>.old-<host>-<pid>-<random>``, read from the right (``<name>`` may itself contain
-#: ``.tmp-`` or ``-``; ``<host>`` has no ``-``, :func:`host_name`).
-HYPROG_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old)-(?P<host>[^-/]+)-"
-                              r"(?P<pid>\d+)-(?P<random>[A-Za-z0-9_]+)(?P<suffix>\.[^-/]*)?$")
-
-
-def temporary_writer(name: str) -> tuple[str, int] | None:
-    """(host, pid) of the writer of a temporary named by :func:`temporary_prefix` (or of a
-    backup named by :func:`swap_into_place`), or None for any other name."""
-    m = HYPROG_TEMPORARY.match(name)
-    return None if m is None else (m["host"], int(m["pid"]))
-
-
-def writer_gone(name: str) -> bool:
-    """True when ``name`` is a hyprog temporary or backup whose writer, a process of this
-    host, no longer runs. Any other name (another program's file, a user's backup) is never
-    taken for one."""
-    who = temporary_writer(name)
-    if who is None:
-        return False
-    host, pid = who
-    return host == host_name() and not pid_alive(pid)
+from .names import (
+    BACKUP_GLOB,
+    HYPROG_TEMPORARY,
+    OLD_MARK,
+    TEMPORARY_GLOB,
+    TMP_MARK,
+    backup_name,
+    host_name,
+    pid_alive,
+    temporary_prefix,
+    temporary_writer,
+    writer_gone,
+)
+from .ownership import OutputKind, check_output
 
 
 def remove_path(path: Path) -> None:
@@ -102,58 +72,108 @@ def default_mode(directory: bool) -> int:
     return (0o777 if directory else 0o666) & ~umask
 
 
-def swap_into_place(tmp: Path, target: Path) -> None:
-    """Move ``tmp`` to ``target``; an existing target is moved aside first and removed after.
+def _exists(path: Path) -> bool:
+    return path.exists() or path.is_symlink()
 
-    Both renames are inside one ``try``: an exception (a signal's included) after the first
-    puts the old target back. The backup is renamed to a temporary before it is deleted, so a
-    writer killed while deleting it leaves a temporary (deleted by the next writer), never a
-    half-deleted backup that could be put back."""
-    if not target.exists() and not target.is_symlink():
-        os.replace(tmp, target)
-        return
-    if target.is_file() and tmp.is_file():
-        os.replace(tmp, target)  # atomic replacement of a file
-        return
-    backup = target.with_name(f".{target.name}{OLD_MARK}{host_name()}-{os.getpid()}-"
-                              f"{uuid.uuid4().hex[:8]}")
-    try:
-        with critical_section():  # a signal waits until both renames are done
-            os.replace(target, backup)
-            os.replace(tmp, target)
-    except BaseException:
-        if backup.exists() and not target.exists() and not target.is_symlink():
-            os.replace(backup, target)
-        raise
+
+def _discard(backup: Path, target: Path) -> None:
+    """Delete a backup: renamed to a temporary first, so a writer killed while deleting it
+    leaves a temporary (deleted by the next writer), never a half-deleted backup that could be
+    put back."""
     trash = target.with_name(f"{temporary_prefix(target.name)}{uuid.uuid4().hex[:8]}")
     os.replace(backup, trash)
     remove_path(trash)
 
 
-@contextmanager
-def atomic_output(target: Path, directory: bool, overwrite: bool = False,
-                  ours: Callable[[Path], bool] | None = None,
-                  want: str | None = None) -> Iterator[Path]:
-    """Yield a temporary sibling of ``target`` to write into; move it in place on success.
-    An existing ``target`` must be one hyprog may replace (:func:`.ownership.check_output`
-    with the writer's recogniser ``ours`` and its description ``want``; ``overwrite=True``
-    replaces anything)."""
-    target = check_output(target, directory, overwrite, ours, want)
-    target.parent.mkdir(parents=True, exist_ok=True)
+def swap_all_into_place(pairs: Sequence[tuple[Path, Path]]) -> None:
+    """Move every ``tmp`` to its ``target``: all of them, or on an exception (a signal's
+    included) none. The existing targets are moved aside to backups
+    (:func:`.names.backup_name`) first and, if anything fails before every new output is in,
+    the new ones go back to their temporaries and the backups back under their names; the
+    backups are deleted only after. A single file replacing a file needs no backup
+    (``os.replace`` is atomic)."""
+    pairs = [(Path(tmp), Path(target)) for tmp, target in pairs]
+    if len(pairs) == 1:
+        tmp, target = pairs[0]
+        if not _exists(target) or (target.is_file() and tmp.is_file()):
+            os.replace(tmp, target)
+            return
+    backups, placed = [], []
+    try:
+        with critical_section():  # a signal waits until every rename is done
+            for _, target in pairs:
+                if _exists(target):
+                    backup = target.with_name(backup_name(target.name))
+                    backups.append((backup, target))  # before: a signal may end the rename
+                    os.replace(target, backup)
+            for tmp, target in pairs:
+                placed.append((tmp, target))
+                os.replace(tmp, target)
+    except BaseException:
+        for tmp, target in reversed(placed):
+            if _exists(target) and not _exists(tmp):
+                os.replace(target, tmp)
+        for backup, target in backups:
+            if backup.exists() and not _exists(target):
+                os.replace(backup, target)
+        raise
+    for backup, target in backups:
+        _discard(backup, target)
+
+
+def swap_into_place(tmp: Path, target: Path) -> None:
+    """Move ``tmp`` to ``target``; an existing target is moved aside first and removed after
+    (:func:`swap_all_into_place`)."""
+    swap_all_into_place([(tmp, target)])
+
+
+def _temporary(target: Path, directory: bool) -> Path:
+    """A new temporary sibling of ``target`` (a file keeps the target's suffix)."""
     prefix = temporary_prefix(target.name)
     if directory:
-        tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=target.parent))
-    else:
-        fd, name = tempfile.mkstemp(prefix=prefix, dir=target.parent)
-        os.close(fd)
-        tmp = Path(name)
+        return Path(tempfile.mkdtemp(prefix=prefix, dir=target.parent))
+    fd, name = tempfile.mkstemp(prefix=prefix, suffix=target.suffix, dir=target.parent)
+    os.close(fd)
+    return Path(name)
+
+
+@contextmanager
+def atomic_outputs(targets: Sequence[tuple[str | os.PathLike, OutputKind]],
+                   overwrite: bool = False,
+                   inputs: Sequence[str | os.PathLike | None] = ()) -> Iterator[list[Path]]:
+    """Yield one temporary sibling per ``(target, kind)`` to write into; when the block
+    succeeds, move them all into place together (:func:`swap_all_into_place`: a sidecar file
+    and its main output are both new or both old). Each target is checked by the ownership
+    rule (:func:`.ownership.check_output` with its kind, ``overwrite`` and the command's
+    ``inputs``) before anything is written and again just before the swap; what a killed
+    writer of the same target left is cleaned first (:func:`remove_stale_temporaries_of`).
+    On any exception the temporaries are removed and every target is left as it was."""
+    for target, _ in targets:
+        remove_stale_temporaries_of(os.path.abspath(target))
+    checked = [(check_output(t, kind, overwrite, inputs), kind) for t, kind in targets]
+    tmps: list[Path] = []
     try:
-        yield tmp
-        tmp.chmod(default_mode(directory))
-        swap_into_place(tmp, target)
+        for target, kind in checked:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmps.append(_temporary(target, kind.directory))
+        yield list(tmps)
+        for (target, kind), tmp in zip(checked, tmps, strict=True):
+            check_output(target, kind, overwrite, inputs)  # what is there now may be replaced
+            tmp.chmod(default_mode(kind.directory))
+        swap_all_into_place([(tmp, target) for tmp, (target, _) in zip(tmps, checked,
+                                                                         strict=True)])
     except BaseException:
-        remove_path(tmp)
+        for tmp in tmps:
+            remove_path(tmp)
         raise
+
+
+@contextmanager
+def atomic_output(target: str | os.PathLike, kind: OutputKind, overwrite: bool = False,
+                  inputs: Sequence[str | os.PathLike | None] = ()) -> Iterator[Path]:
+    """:func:`atomic_outputs` of the one output ``target``: yields its temporary."""
+    with atomic_outputs([(target, kind)], overwrite, inputs) as (tmp,):
+        yield tmp
 
 
 def _clean_stale(entries, name: str | None = None) -> int:
@@ -165,11 +185,11 @@ def _clean_stale(entries, name: str | None = None) -> int:
         m = HYPROG_TEMPORARY.match(q.name)
         if m is None or (name is not None and m["name"] != name):
             continue  # not a hyprog temporary, or another output's
-        if not writer_gone(q.name) or not (q.exists() or q.is_symlink()):
+        if not writer_gone(q.name) or not _exists(q):
             continue  # a running writer's, or gone with an entry handled before
         if m["kind"] == "old":
             original = q.with_name(m["name"])
-            if not original.exists() and not original.is_symlink():
+            if not _exists(original):
                 os.replace(q, original)  # the writer died between its two renames
                 n += 1
                 continue
@@ -198,3 +218,10 @@ def remove_stale_temporaries_of(target: str | os.PathLike) -> int:
         return 0
     return _clean_stale([*t.parent.glob(f".{t.name}{TMP_MARK}*"),
                          *t.parent.glob(f".{t.name}{OLD_MARK}*")], t.name)
+
+
+__all__ = ["BACKUP_GLOB", "HYPROG_TEMPORARY", "OLD_MARK", "TEMPORARY_GLOB", "TMP_MARK",
+           "atomic_output", "atomic_outputs", "default_mode", "host_name", "pid_alive",
+           "remove_path", "remove_stale_temporaries", "remove_stale_temporaries_of",
+           "swap_all_into_place", "swap_into_place", "temporary_prefix", "temporary_writer",
+           "writer_gone"]

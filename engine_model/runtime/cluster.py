@@ -1,11 +1,24 @@
-"""Workers for the fleet commands (simulate, calibrate, the pipeline): a Dask client, on a
-cluster or on this machine, or a pool of local worker processes, and the tasks' results as
-they complete; and the engine model each worker process builds once (:func:`process_model`).
+"""The one executor of the fleet commands (simulate, calibrate, the pipeline): tasks run in
+this process, on a pool of local worker processes or on a Dask cluster, behind one interface;
+and the engine model each worker process builds once (:func:`process_model`).
 
-    from engine_model.runtime.cluster import connect
-    with connect("tcp://host:8786") as cl:          # or "local", or a distributed.Client
-        for result in cl.map(fn, tasks):
+    from engine_model.runtime.cluster import executor
+    with executor(scheduler, jobs) as ex:            # Serial, ProcessPool or Cluster
+        for result in ex.map(fn, tasks):             # as each task completes
             ...
+
+The interface (:class:`Executor`): ``map(fn, tasks)`` yields ``fn(task)`` for every task as
+each completes (in order for :class:`Serial`); ``n_workers`` (how many tasks run at once, for
+planning) and ``worker_threads`` (the threads of a worker's engine model: None in this
+process, which uses its own model, 1 in a worker); ``close()`` after the work, ``abort()`` on an
+error or an interrupt (what is queued is cancelled, the workers end). As a context manager it
+closes on success and aborts on an exception. :func:`executor` picks one:
+
+- no ``scheduler`` and ``jobs == 1``: :class:`Serial`, in this process;
+- no ``scheduler`` and ``jobs > 1``: :class:`ProcessPool` of ``jobs`` processes;
+- ``scheduler`` (below): :class:`Cluster`.
+
+Dask (:func:`connect`):
 
 - ``"local"``: a ``distributed.LocalCluster`` of ``jobs`` single-threaded worker processes
   on this machine (closed with the :class:`Cluster`);
@@ -28,6 +41,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Protocol
 
 from engine_model.validation import InputError
 
@@ -68,13 +82,63 @@ def watch_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="hyprog-parent-watch", daemon=True).start()
 
 
-class ProcessPool:
+class Executor(Protocol):
+    """What runs a fleet command's tasks (module docstring)."""
+
+    n_workers: int
+    worker_threads: int | None
+
+    def map(self, fn: Callable, tasks: Iterable) -> Iterator: ...
+
+    def close(self) -> None: ...
+
+    def abort(self) -> None: ...
+
+    def __enter__(self): ...
+
+    def __exit__(self, kind, *exc): ...
+
+
+class _Lifetime:
+    """Closed after the work, aborted on an exception (module docstring)."""
+
+    def abort(self) -> None:
+        self.close()
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, *exc):
+        if kind is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class Serial(_Lifetime):
+    """The tasks one after the other in this process, in their order."""
+
+    n_workers = 1
+    worker_threads = None
+
+    def map(self, fn: Callable, tasks: Iterable) -> Iterator:
+        for t in tasks:
+            yield fn(t)
+
+
+class ProcessPool(_Lifetime):
     """``jobs`` worker processes (``spawn``) that die with this process (module docstring)."""
+
+    worker_threads = 1
 
     def __init__(self, jobs: int):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
+        self.n_workers = jobs
         self.ex = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
                                       initializer=watch_parent, initargs=(os.getpid(),))
 
@@ -104,15 +168,6 @@ class ProcessPool:
         for p in procs:
             p.join(timeout=5)
 
-    def __enter__(self):
-        return self
-
-    def __exit__(self, kind, *exc):
-        if kind is None:
-            self.close()
-        else:
-            self.abort()
-
 
 def process_model(effects: Sequence[str] = (), threads: int | None = None):
     """The engine model of this process with ``effects`` (specification strings, their
@@ -136,8 +191,10 @@ def process_model(effects: Sequence[str] = (), threads: int | None = None):
     return _MODELS[key]
 
 
-class Cluster:
+class Cluster(_Lifetime):
     """A Dask client and what to close with it (see :func:`connect`)."""
+
+    worker_threads = 1
 
     def __init__(self, client, cluster=None, owned: bool = True):
         self.client = client
@@ -168,12 +225,6 @@ class Cluster:
             self.client.close()
             if self.cluster is not None:
                 self.cluster.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
 
 def _probe(address: str) -> None:
@@ -229,4 +280,13 @@ def connect(scheduler, jobs: int = 1) -> Cluster:
     return Cluster(client)
 
 
-__all__ = ["Cluster", "ProcessPool", "connect", "process_model", "watch_parent"]
+def executor(scheduler=None, jobs: int = 1) -> Executor:
+    """The executor for ``scheduler`` (an address, ``"local"``, a ``distributed.Client`` or a
+    :class:`Cluster`; None: this machine) and ``jobs`` (module docstring)."""
+    if scheduler is not None:
+        return connect(scheduler, jobs)
+    return ProcessPool(jobs) if jobs > 1 else Serial()
+
+
+__all__ = ["Cluster", "Executor", "ProcessPool", "Serial", "connect", "executor",
+           "process_model", "watch_parent"]

@@ -20,10 +20,8 @@ from pathlib import Path
 
 from engine_model.validation import InputError
 
-from .atomic import host_name, pid_alive
 from .critical import critical_section
-
-LOCK_SUFFIX = ".hyprog-lock"
+from .names import LOCK_SUFFIX, host_name, pid_alive
 
 
 def lock_path(path: str | os.PathLike) -> Path:

@@ -44,11 +44,11 @@ killed writer are deleted by the next run once their writer is gone.
 from __future__ import annotations
 
 import json
-import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +62,9 @@ from engine_model.channels import (
     XS_NAMES,
     XV_NAMES,
 )
+from engine_model.runtime.atomic import atomic_output, remove_path, swap_into_place
+from engine_model.runtime.cluster import executor, process_model
+from engine_model.runtime.ownership import OWNED_FILE
 from engine_model.validation import InputError
 
 from . import degradation, flight_profiles, sensor_noise
@@ -269,21 +272,23 @@ def truth_model(effect_specs: Sequence[str] = (), threads: int | None = 1):
     (specification strings), built once per process (:func:`cluster.process_model`; a Dask
     worker's is single-threaded)."""
     from engine_model.physics.effects import parse_effect_spec, split_series_effects
-    from engine_model.runtime.cluster import process_model
 
     steady, _ = split_series_effects([parse_effect_spec(e) for e in effect_specs])
     return process_model([e.spec() for e in steady], threads)
 
 
-def simulate_unit_task(task: dict) -> tuple:
-    """One unit of a fleet on a worker: ``task`` holds the unit's :class:`UnitSpec`, the seed,
-    rate, record, noise scale, wear parameters and the effects as specifications; returns
-    ``(unit, DataFrame, info)`` exactly as :func:`simulate_unit` in the client would."""
+def simulate_unit_task(task: dict, model=None) -> tuple:
+    """One unit of a fleet (on whichever executor runs it): ``task`` holds the unit's
+    :class:`UnitSpec`, the seed, rate, record, noise scale, wear parameters, the effects as
+    specifications and the threads of the truth model (None: this process's own); ``model``
+    replaces that truth model (only in the calling process). Returns ``(unit, DataFrame,
+    info)``; a warning about dropped samples is left to the caller, which says it once
+    wherever the unit ran."""
     import warnings as _warnings
 
     from engine_model.physics.effects import parse_effect_spec, split_series_effects
 
-    truth = truth_model(task["effects"])
+    truth = model if model is not None else truth_model(task["effects"], task.get("threads", 1))
     _, series = split_series_effects([parse_effect_spec(e) for e in task["effects"]])
     with _warnings.catch_warnings():  # the client warns about dropped samples
         _warnings.simplefilter("ignore")
@@ -307,9 +312,8 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     (:mod:`engine_model.runtime.ownership`). ``scheduler``: simulate the units on a Dask
     cluster (module docstring; ``jobs`` workers for ``"local"``); without it, ``jobs > 1``
     worker processes (:class:`cluster.ProcessPool`), one unit per task; ``model`` is used only
-    in this process (neither)."""
-    from engine_model.physics.effects import split_series_effects
-
+    in this process (neither); all three run through the one executor
+    (:func:`engine_model.runtime.cluster.executor`)."""
     p = get_preset(preset) if isinstance(preset, str) else preset
     specs = select_units(p, units)
     rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
@@ -317,52 +321,23 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
     if out is not None:
         _check_out(Path(out), fmt, overwrite)  # before any work
-    steady, series = split_series_effects(effects)
+    local_model = model if scheduler is None else None  # a model is used only here
 
-    def local(todo):
-        from engine_model.runtime.cluster import process_model
-
-        truth = model or process_model([e.spec() for e in steady])
-        p_def = np.asarray(truth.p_default, float)
-        for s in todo:
-            df, info = simulate_unit(truth, s, seed, rate, rec, noise_scale, p_def, series,
-                                     p.wear_params)
-            yield s.unit, df, info
-
-    def on_cluster(todo):
-        from engine_model.runtime.cluster import connect
-
+    def produce(todo):
         names = [e.spec() for e in effects]
-        tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
-                  "noise_scale": float(noise_scale), "wear_params": p.wear_params,
-                  "effects": names} for s in todo]
-        with connect(scheduler, jobs) as cluster:
-            for unit, df, info in cluster.map(simulate_unit_task, tasks):
-                if info["dropped"]:  # the worker's warning stays there: say it here
-                    warnings.warn(f"unit {unit}: {info['dropped']} samples did not converge "
-                                  "and were dropped", stacklevel=3)
-                yield unit, df, info
-
-    def on_processes(todo):
-        from engine_model.runtime.cluster import ProcessPool
-
-        names = [e.spec() for e in effects]
-        tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
-                  "noise_scale": float(noise_scale), "wear_params": p.wear_params,
-                  "effects": names} for s in todo]
-        with ProcessPool(min(jobs, len(tasks))) as pool:
-            for unit, df, info in pool.map(simulate_unit_task, tasks):
+        n = 1 if local_model is not None else max(1, min(jobs, len(todo)))
+        with executor(scheduler, n) as ex:  # serial, worker processes or Dask
+            tasks = [{"spec": s, "seed": int(seed), "rate": rate, "record": rec,
+                      "noise_scale": float(noise_scale), "wear_params": p.wear_params,
+                      "effects": names, "threads": ex.worker_threads} for s in todo]
+            fn = simulate_unit_task if local_model is None else \
+                partial(simulate_unit_task, model=local_model)
+            for unit, df, info in ex.map(fn, tasks):
                 if info["dropped"]:
                     warnings.warn(f"unit {unit}: {info['dropped']} samples did not converge "
                                   "and were dropped", stacklevel=3)
                 yield unit, df, info
 
-    if scheduler is not None:
-        produce = on_cluster
-    elif jobs > 1 and model is None:
-        produce = on_processes
-    else:
-        produce = local
     return _write(produce, specs, meta, out, fmt, progress, overwrite)
 
 
@@ -402,7 +377,7 @@ def partial_dir(out: Path, meta: dict) -> Path:
     import hashlib
 
     from engine_model.datasets import hyprog_version
-    from engine_model.datasets.metadata import json_default
+    from engine_model.datasets.jsonable import json_default
 
     body = json.dumps({"meta": meta, "hyprog": hyprog_version()}, sort_keys=True,
                       default=json_default)
@@ -424,13 +399,8 @@ def _done_units(stage: Path) -> dict[int, dict]:
 
 
 def _write_info(stage: Path, unit: int, info: dict) -> None:
-    folder = stage / UNIT_INFO_DIR
-    folder.mkdir(exist_ok=True)
-    from engine_model.runtime.atomic import temporary_prefix
-
-    tmp = folder / f"{temporary_prefix(f'{unit}.json')}{os.urandom(4).hex()}"
-    tmp.write_text(json.dumps(info))
-    os.replace(tmp, folder / f"{unit}.json")
+    with atomic_output(stage / UNIT_INFO_DIR / f"{unit}.json", OWNED_FILE) as tmp:
+        tmp.write_text(json.dumps(info))
 
 
 def _write(produce, specs, meta, out, fmt, progress, overwrite):
@@ -440,7 +410,6 @@ def _write(produce, specs, meta, out, fmt, progress, overwrite):
     again), renamed to ``out`` when the last is written; h5 and ``out=None``: the fleet in
     the preset's order."""
     from engine_model import datasets, runtime
-    from engine_model.runtime.atomic import remove_path, swap_into_place
 
     report = SimulationReport()
     t0 = time.perf_counter()

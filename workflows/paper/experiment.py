@@ -34,7 +34,8 @@ Cache and resume
 A run's key is the SHA-256 of what determines its numbers (model, inputs, seed, training
 units, perturbation, conformal units: the resolved training configuration) and the fingerprint
 of the data (a hash of every value of the table, ``pandas.util.hash_pandas_object``, and of its
-metadata). Its results live in ``OUT/runs/<key>/``: the model (``model/``,
+metadata: :func:`engine_model.datasets.fingerprint.table_fingerprint`). Its results live in
+``OUT/runs/<key>/``: the model (``model/``,
 :mod:`prognostics.checkpoint`), the test predictions (``predictions.parquet``) and ``result.json``,
 written last and atomically: a run with ``result.json`` is done and is never trained again; an
 interrupted run leaves no ``result.json`` and is redone. One process writes into ``OUT`` at a time
@@ -60,7 +61,9 @@ import numpy as np
 import pandas as pd
 
 from engine_model.channels import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
-from engine_model.runtime import output_lock
+from engine_model.datasets.fingerprint import table_fingerprint
+from engine_model.datasets.jsonable import jsonable
+from engine_model.runtime import OutputKind, check_output, output_lock
 from engine_model.runtime.atomic import remove_stale_temporaries
 from engine_model.validation import InputError
 from prognostics.checkpoint import FORMAT_VERSION, save_model
@@ -137,14 +140,6 @@ def perfect_calibration(df: pd.DataFrame,
     return out
 
 
-def data_fingerprint(df: pd.DataFrame, metadata: dict | None) -> str:
-    h = hashlib.sha256()
-    h.update(json.dumps(list(map(str, df.columns))).encode())
-    h.update(pd.util.hash_pandas_object(df, index=False).to_numpy().tobytes())
-    h.update(json.dumps(metadata or {}, sort_keys=True, default=str).encode())
-    return h.hexdigest()
-
-
 def train_config(run: Run, cfg: ExperimentConfig, test_units: Sequence[int]) -> TrainConfig:
     return TrainConfig(model=run.model, inputs=run.inputs, seed=run.seed, epochs=cfg.epochs,
                        units=run.units, test_units=tuple(test_units),
@@ -152,18 +147,21 @@ def train_config(run: Run, cfg: ExperimentConfig, test_units: Sequence[int]) -> 
                        device=cfg.device).resolved()
 
 
-def check_experiment_out(out: Path) -> None:
-    """``out`` is absent, empty (hidden entries aside) or an experiment's folder (it holds
-    ``runs/``): the experiment writes, resumes and cleans up only there, never in a folder of
-    other files (InputError naming it)."""
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise InputError(f"{out}: exists and is not a directory; choose another --out")
-    if (out / "runs").is_dir() or not any(not p.name.startswith(".") for p in out.iterdir()):
-        return
-    raise InputError(f"{out}: holds files that are not an experiment's (no runs/ folder); "
-                     "choose a new or empty --out")
+def is_experiment_folder(path: Path) -> bool:
+    """``path`` is an experiment's folder (it holds ``runs/``)."""
+    return (path / "runs").is_dir()
+
+
+#: The experiment's output folder (the ownership rule's kind): written into and resumed.
+EXPERIMENT_FOLDER = OutputKind("an experiment's folder (with runs/)", directory=True,
+                               ours=is_experiment_folder, resumed=True)
+
+
+def check_experiment_out(out: Path, inputs=()) -> None:
+    """``out`` is absent, empty (but for hyprog's hidden entries) or an experiment's folder,
+    and none of ``inputs``: the experiment writes, resumes and cleans up only there, never in
+    a folder of other files (the ownership rule, :mod:`engine_model.runtime.ownership`)."""
+    check_output(out, EXPERIMENT_FOLDER, inputs=inputs)
 
 
 def run_key(run: Run, tc: TrainConfig, fingerprint: str) -> str:
@@ -195,18 +193,8 @@ def _execute(run: Run, tc: TrainConfig, df: pd.DataFrame, meta: dict, test: list
            "history": m.history, "best_epoch": m.best_epoch, "parameters": m.parameters,
            "conformal": None if model.conformal is None else model.conformal.to_dict(),
            "seconds": seconds}
-    write_json(run_dir / "result.json", _jsonable(rec))
+    write_json(run_dir / "result.json", jsonable(rec))
     return load_result(run_dir)  # the same (string-keyed) record a resumed run reads
-
-
-def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, float) and not np.isfinite(o):
-        return None
-    return o
 
 
 def load_result(run_dir: Path) -> dict | None:
@@ -240,7 +228,7 @@ def _baseline(df, meta, dev, test, out: Path, fingerprint: str, hi_fn, log) -> d
     rec = {"run": {"part": "baseline", "model": "physics", "inputs": "theta_hat-HI-trend"},
            "metrics": evaluate_predictions(pred), "max_rul": max_rul,
            "seconds": time.perf_counter() - t0}
-    write_json(run_dir / "result.json", _jsonable(rec))
+    write_json(run_dir / "result.json", jsonable(rec))
     log(f"baseline: rmse {rec['metrics']['samples']['overall']['rmse']:.3f}")
     rec = load_result(run_dir)
     rec["key"] = run_dir.name
@@ -251,20 +239,21 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
                    config: ExperimentConfig | None = None,
                    hi_fn: Callable[[np.ndarray], np.ndarray] | None = None,
                    log: Callable[[str], None] | None = None, source: str = "table",
-                   outputs_fn: Callable[[np.ndarray, np.ndarray], pd.DataFrame] | None = None
-                   ) -> dict:
+                   outputs_fn: Callable[[np.ndarray, np.ndarray], pd.DataFrame] | None = None,
+                   inputs=()) -> dict:
     """Run (or resume) every selected run, then write the report (:mod:`.paper_report`).
 
     ``hi_fn`` is the health index for the baseline (default: the engine model's
     ``HealthIndex``, built only when the baseline is not cached); ``outputs_fn`` the model
     of :func:`perfect_calibration` (default: the engine model, evaluated only when a perfect-
-    calibration run is not cached). Returns ``{"trained", "cached", "runs", "report"}``.
+    calibration run is not cached); ``inputs``: the paths the command read (the feature
+    table), never written over. Returns ``{"trained", "cached", "runs", "report"}``.
     """
 
     log = log or (lambda s: None)
     cfg = (config or ExperimentConfig()).checked()
     out = Path(out)
-    check_experiment_out(out)
+    check_experiment_out(out, inputs)
     meta = metadata or {}
     present = np.unique(df["unit"].to_numpy()).tolist()
     dev, test = development_and_test_units(present, meta, source=source)
@@ -272,7 +261,7 @@ def run_experiment(df: pd.DataFrame, metadata: dict | None, out: str | Path,
         raise InputError(f"{source}: the metadata names no test_units to evaluate on")
     if "small" in cfg.parts:
         development_and_test_units(present, meta, cfg.small_units, test, source)
-    fingerprint = data_fingerprint(df, meta)
+    fingerprint = table_fingerprint(df, meta)
     runs = plan(cfg, dev)
     perfect_table: list[pd.DataFrame] = []
 

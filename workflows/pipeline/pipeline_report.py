@@ -27,7 +27,7 @@ import pandas as pd
 
 from engine_model.channels import THETA_NAMES
 from prognostics.metrics import per_cycle
-from prognostics.outputs import write_json, write_text
+from prognostics.outputs import write_bytes, write_json, write_text
 
 from . import document
 from .config import results_config, to_toml
@@ -286,10 +286,3 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     files = ["report.md", "report.html", "metrics.json",
              *sorted(str(p.relative_to(out)) for p in figs.glob("*.png"))]
     return {"files": files}
-
-
-def write_bytes(path: Path, data: bytes) -> None:
-    from prognostics.outputs import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)

@@ -2,12 +2,15 @@
 configuration and input (:mod:`.state`), under one lock on the output folder.
 
 The output folder ``OUT`` is absent, empty, or one this function wrote before (it holds
-``pipeline.json``); anything else is refused, as is the current directory or a parent of it.
-One run at a time writes into it (:func:`engine_model.runtime.output_lock`). Every file is
-written atomically and every stage marks itself done last, so an interrupted run (Ctrl-C,
-SIGTERM) leaves no half-written file; a SIGKILL can leave hidden temporaries and the lock,
-which the next run removes (the lock's process is gone). The next run redoes only what was
-not finished and gives the numbers an uninterrupted run gives.
+``pipeline.json``); anything else is refused, as is the current directory or a parent of it
+and a folder that is, holds or lies inside DATA or the configuration file (the ownership
+rule, :mod:`engine_model.runtime.ownership`, kind :data:`PIPELINE_FOLDER`). One run at a time
+writes into it (:func:`engine_model.runtime.output_lock`). Every file is written atomically
+and every stage marks itself done last, so an interrupted run (Ctrl-C, SIGTERM) leaves no
+half-written file; a SIGKILL can leave hidden temporaries, a folder's backup and the lock,
+which the next run cleans (:func:`engine_model.runtime.remove_stale_temporaries`: a dead
+writer's temporaries deleted, a backup put back; the lock's process is gone). The next run
+redoes only what was not finished and gives the numbers an uninterrupted run gives.
 
 Dependencies (what a stage's fingerprint holds besides its own table of the config):
 
@@ -28,57 +31,48 @@ result, so a run resumed with other workers or on a cluster skips what is done.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+from engine_model.datasets.fingerprint import files_fingerprint
+from engine_model.runtime import (
+    OutputKind,
+    check_output,
+    output_lock,
+    remove_stale_temporaries,
+)
 from engine_model.validation import InputError
 from prognostics.outputs import write_json
 
 from . import pipeline_report as report
 from . import stages, state
 from .config import results_config
-from .state import data_fingerprint, fingerprint
+from .state import stage_fingerprint
 
 MARK = "pipeline.json"
 FORMAT = "hyprog-pipeline"
 STAGES = ("simulate", "calibrate", "discover", "features", "train", "evaluate", "report")
 
 
-def check_out(out: Path) -> None:
-    """``out`` may receive a pipeline run (module docstring)."""
-    p = Path(os.path.abspath(out))
-    cwd = Path.cwd().resolve()
-    if p.resolve() == cwd or p.resolve() in cwd.parents:
-        raise InputError(f"{out}: is the current directory or one of its parents; name a new "
-                         "folder (e.g. --out results)")
-    if not p.exists():
-        return
-    if not p.is_dir():
-        raise InputError(f"{out}: exists and is not a directory; choose another --out")
-    if not any(p.iterdir()):
-        return
+def is_pipeline_folder(path: Path) -> bool:
+    """``path`` is a folder :func:`run_pipeline` wrote (its ``pipeline.json`` says so)."""
     try:
-        ok = json.loads((p / MARK).read_text()).get("format") == FORMAT
+        return json.loads((path / MARK).read_text()).get("format") == FORMAT
     except (OSError, json.JSONDecodeError, AttributeError):
-        ok = False
-    if not ok:
-        raise InputError(f"{out}: exists and is not a hyprog pipeline folder (no {MARK}); "
-                         "choose another --out")
+        return False
 
 
-def remove_temporaries(out: Path) -> int:
-    """Delete the hidden temporaries (``.<name>.tmp-*``) a killed run (SIGKILL) left in
-    ``out``; called under the lock, so no running writer owns any of them."""
-    stale = list(out.rglob(".*.tmp-*"))
-    for q in stale:
-        if q.is_dir() and not q.is_symlink():
-            shutil.rmtree(q, ignore_errors=True)
-        else:
-            q.unlink(missing_ok=True)
-    return len(stale)
+#: The pipeline's output folder (the ownership rule's kind): written into and resumed.
+PIPELINE_FOLDER = OutputKind(f"a hyprog pipeline folder (with {MARK})", directory=True,
+                             ours=is_pipeline_folder, resumed=True)
+
+
+def check_out(out: Path, inputs=()) -> None:
+    """``out`` may receive a pipeline run (module docstring); ``inputs``: DATA and the
+    configuration file."""
+    check_output(out, PIPELINE_FOLDER, inputs=inputs)
 
 
 def check_data(data: Path | None) -> None:
@@ -87,20 +81,21 @@ def check_data(data: Path | None) -> None:
 
 
 def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
-                 quiet: bool = True, log: Callable[[str], None] | None = None) -> dict:
+                 quiet: bool = True, log: Callable[[str], None] | None = None,
+                 inputs=()) -> dict:
     """Run (or resume) the pipeline into ``out``; returns ``{"stages": {name: {"status",
-    "seconds"}}, "files", "metrics"}``."""
-    from engine_model.runtime import output_lock
-
+    "seconds"}}, "files", "metrics"}``. ``inputs``: the other files the command reads (its
+    configuration file), never written over."""
     out = Path(out)
     check_data(None if data is None else Path(data))
-    check_out(out)
+    inputs = (data, *inputs)
+    check_out(out, inputs)
     log = log or (lambda msg: None)
     with output_lock(out):
-        check_out(out)
+        check_out(out, inputs)
         created = not out.exists() or not any(out.iterdir())
         out.mkdir(parents=True, exist_ok=True)
-        remove_temporaries(out)
+        remove_stale_temporaries(out)  # what a killed run left (a dead writer's only)
         if not (out / MARK).is_file():
             write_json(out / MARK, {"format": FORMAT})
         ctx = stages.Context(out=out, config=config, quiet=quiet, log=log)
@@ -133,7 +128,7 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
     summaries: dict = {}
 
     def step(name: str, conf: dict, inputs: dict, fn, *args) -> dict:
-        fp = fingerprint(name, conf, inputs)
+        fp = stage_fingerprint(name, conf, inputs)
         t0 = time.perf_counter()
         got = state.done(out, name, fp)
         if got is not None:
@@ -161,7 +156,7 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
     else:
         label = str(data)
     t0 = time.perf_counter()
-    dfp = data_fingerprint(data)
+    dfp = files_fingerprint(data)
     summaries["data"] = {"data": str(data), "label": label, "fingerprint": dfp}
     base = {"data": dfp, "units": data_cfg["units"]}
     timings["data"] = {"status": "checked", "seconds": time.perf_counter() - t0}

@@ -33,9 +33,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from data_samples import TINY_FLEET, sample_path
+from engine_model.datasets.jsonable import jsonable
 from engine_model.validation import InputError
 
 from .config import train_config
@@ -147,21 +146,11 @@ def _read(path, units=None):
     return read_dataset(path, units=units)
 
 
-def _jsonable(o):
-    """Round trip through JSON: int keys become strings, numpy scalars Python numbers, NaN
-    None (what a resumed run reads back from the marker)."""
-    def clean(v):
-        if isinstance(v, dict):
-            return {str(k): clean(x) for k, x in v.items()}
-        if isinstance(v, list | tuple):
-            return [clean(x) for x in v]
-        if isinstance(v, np.generic):
-            v = v.item()
-        if isinstance(v, float) and not np.isfinite(v):
-            return None
-        return v
-
-    return json.loads(json.dumps(clean(o)))
+def _round_trip(o):
+    """Round trip through JSON (:func:`engine_model.datasets.jsonable.jsonable`): int keys
+    become strings, numpy scalars Python numbers, NaN None (what a resumed run reads back from
+    the marker)."""
+    return json.loads(json.dumps(jsonable(o)))
 
 
 # ----------------------------------------------------------------------------- stages
@@ -199,13 +188,13 @@ def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
     """theta_hat of every unit into ``folder/features`` (a rerun resumes unit by unit)."""
     c = ctx.config["calibrate"]
     res = _calibrate_into(ctx, folder / "features", data)
-    return _jsonable({"table": ctx.rel(folder / "features"), "method": c["method"],
-                      "params": list(res.setup.params), "sensors": list(res.sensors),
-                      "samples": res.samples, "seconds": res.seconds,
-                      "units": {u: {"samples": v["samples"],
-                                    "n_nonconverged": v["n_nonconverged"]}
-                                for u, v in sorted(res.units.items())},
-                      "resumed_units": res.skipped, "warnings": list(res.warnings)})
+    return _round_trip({"table": ctx.rel(folder / "features"), "method": c["method"],
+                        "params": list(res.setup.params), "sensors": list(res.sensors),
+                        "samples": res.samples, "seconds": res.seconds,
+                        "units": {u: {"samples": v["samples"],
+                                      "n_nonconverged": v["n_nonconverged"]}
+                                  for u, v in sorted(res.units.items())},
+                        "resumed_units": res.skipped, "warnings": list(res.warnings)})
 
 
 def discover(ctx: Context, folder: Path, data: Path) -> dict:
@@ -234,14 +223,14 @@ def discover(ctx: Context, folder: Path, data: Path) -> dict:
                  progress=say)
     write_report(result, folder / "report")
     r = report_dict(result)
-    return _jsonable({"report": ctx.rel(folder / "report"), "verdict": r["verdict"],
-                      "found": r["found"], "ambiguous": r["ambiguous"], "unknown": r["unknown"],
-                      "before": r["before"], "after": r["after"],
-                      "theta_error": r["theta_error"], "drift": r["drift"],
-                      "noise": {k: v for k, v in r["noise"].items() if k != "channels"},
-                      "rejected": r["rejected"],
-                      "candidates": len(r["diagnostics"]["candidates"]),
-                      "seconds": r["diagnostics"]["seconds"]})
+    return _round_trip({"report": ctx.rel(folder / "report"), "verdict": r["verdict"],
+                        "found": r["found"], "ambiguous": r["ambiguous"], "unknown": r["unknown"],
+                        "before": r["before"], "after": r["after"],
+                        "theta_error": r["theta_error"], "drift": r["drift"],
+                        "noise": {k: v for k, v in r["noise"].items() if k != "channels"},
+                        "rejected": r["rejected"],
+                        "candidates": len(r["diagnostics"]["candidates"]),
+                        "seconds": r["diagnostics"]["seconds"]})
 
 
 def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
@@ -263,8 +252,8 @@ def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
     rows = unit_rows(table)
     split = split_units(list(rows), meta, ctx.config["data"], str(table))
     inputs = {s: resolve_inputs(s, columns, str(table)) for s in ctx.config["train"]["inputs"]}
-    return _jsonable({"table": ctx.rel(table), "effects": specs, "split": split,
-                      "inputs": inputs, "rows": int(sum(rows.values()))})
+    return _round_trip({"table": ctx.rel(table), "effects": specs, "split": split,
+                        "inputs": inputs, "rows": int(sum(rows.values()))})
 
 
 def unit_rows(table: Path) -> dict[int, int]:
@@ -311,7 +300,7 @@ def train(ctx: Context, folder: Path, feats: dict) -> dict:
                          "history": [{k: h[k] for k in ("epoch", "train_loss", "val_loss")}
                                      for h in m.history]} for m in model.members],
             "conformal": None if model.conformal is None else model.conformal.to_dict()}
-    return _jsonable(out)
+    return _round_trip(out)
 
 
 def evaluate(ctx: Context, folder: Path, feats: dict, trained: dict) -> dict:
@@ -330,4 +319,4 @@ def evaluate(ctx: Context, folder: Path, feats: dict, trained: dict) -> dict:
         path = folder / f"{inputs}.predictions.parquet"
         write_table(path, pred)
         out[inputs] = {"metrics": metrics, "predictions": ctx.rel(path)}
-    return _jsonable(out)
+    return _round_trip(out)

@@ -1,9 +1,11 @@
 """What a stage depends on and whether its output is already there (resume).
 
 A stage's **fingerprint** is the SHA-256 of what determines its output: the stage's name, its
-configuration tables, the fingerprints of the stages it reads and the hyprog version. The
-data's fingerprint is the SHA-256 of the bytes of every data file (a parquet directory's part
-files in path order, or the one h5 file), so other data under the same path are noticed.
+configuration tables, the fingerprints of the stages it reads and the hyprog version
+(:func:`stage_fingerprint`). The data's fingerprint is the SHA-256 of the bytes of every data
+file (a parquet directory's part files in path order, or the one h5 file;
+:func:`engine_model.datasets.fingerprint.files_fingerprint`), so other data under the same
+path are noticed.
 
 A stage writes into its own folder ``OUT/stages/<stage>-<fingerprint[:12]>/`` and, last, a
 marker ``stage.json`` (atomically) holding the full fingerprint and the stage's summary. A
@@ -25,25 +27,9 @@ from prognostics.outputs import write_json
 
 MARKER = "stage.json"
 STAGES_DIR = "stages"
-FILE_CHUNK = 1 << 20
 
 
-def data_fingerprint(path: str | Path) -> str:
-    """SHA-256 over the relative names and bytes of the data files of ``path``."""
-    p = Path(path)
-    files = [p] if p.is_file() else sorted(
-        q for q in p.rglob("*") if q.is_file()
-        and not any(part.startswith(".") for part in q.relative_to(p).parts))
-    h = hashlib.sha256()
-    for f in files:
-        h.update(str(f.relative_to(p) if f != p else f.name).encode() + b"\0")
-        with open(f, "rb") as fh:
-            while chunk := fh.read(FILE_CHUNK):
-                h.update(chunk)
-    return h.hexdigest()
-
-
-def fingerprint(stage: str, config: dict, inputs: dict) -> str:
+def stage_fingerprint(stage: str, config: dict, inputs: dict) -> str:
     """SHA-256 of the stage name, its ``config`` tables and its ``inputs`` fingerprints."""
     body = {"stage": stage, "config": config, "inputs": inputs, "hyprog": hyprog_version()}
     return hashlib.sha256(json.dumps(body, sort_keys=True, default=str).encode()).hexdigest()
