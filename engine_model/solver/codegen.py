@@ -3,7 +3,8 @@
 The cache key is the SHA-256 of the generated C source plus the compiler command, so a
 changed model recompiles and an unchanged one is loaded by a second process without
 compiling. The cache directory is ``$HYPROG_CACHE`` or ``~/.cache/hyprog``. Files are written
-to a temporary name and renamed, so concurrent processes never load a half-written library.
+atomically (:mod:`engine_model.runtime.atomic`), so concurrent processes never load a
+half-written library.
 """
 
 import hashlib
@@ -14,6 +15,9 @@ import tempfile
 from pathlib import Path
 
 import casadi as ca
+
+from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.ownership import OWNED_FILE
 
 CFLAGS = ("-fPIC", "-shared", "-fno-math-errno")
 
@@ -68,9 +72,8 @@ def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2",
                 err = _build(cc, opt, sources, tuple(extra_flags), tmp_lib)
             if err is not None:
                 raise RuntimeError(f"compiling {name} failed: {err}")
-            staged = lib.with_suffix(f".{os.getpid()}.tmp")
-            shutil.copyfile(tmp_lib, staged)
-            os.replace(staged, lib)
+            with atomic_output(lib, OWNED_FILE) as staged:
+                shutil.copyfile(tmp_lib, staged)
     out = {f.name(): ca.external(f.name(), str(lib)) for f in functions}
     out["__library__"] = str(lib)
     return out

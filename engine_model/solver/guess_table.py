@@ -19,12 +19,13 @@ the compiled code, keyed by a hash of the residual system (a changed model rebui
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.ownership import OWNED_FILE
 from engine_model.units import R_PER_K
 
 TABLE_PCT = np.linspace(24.0, 104.0, 41)  # from below ground idle (25 %) to maximum
@@ -103,7 +104,8 @@ class GuessTable:
     def load_or_build(cls, path: Path, build: Callable[[], GuessTable], t40_des_k: float,
                       nf_demand_pct: Callable, flight_weight: Callable) -> GuessTable:
         """The table cached at ``path`` (an ``.npz``), else ``build()`` and cache it (written
-        to a temporary name and renamed, so concurrent processes never read half a file)."""
+        atomically, :mod:`engine_model.runtime.atomic`: concurrent processes never read half a
+        file)."""
         if path.exists():
             try:
                 z = np.load(path)
@@ -111,9 +113,8 @@ class GuessTable:
             except (OSError, KeyError, ValueError):
                 pass
         tab = build()
-        staged = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(staged, table=tab.table, dth=tab.dth)
-        os.replace(staged, path)
+        with atomic_output(path, OWNED_FILE) as staged, open(staged, "wb") as fh:
+            np.savez(fh, table=tab.table, dth=tab.dth)
         return tab
 
     @staticmethod
