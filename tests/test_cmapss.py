@@ -19,7 +19,12 @@ from engine_model.datasets import (
     read_dataset,
     read_rul_file,
 )
-from engine_model.datasets.cmapss import NOT_PHYSICAL, offset_for_test_units
+from engine_model.datasets.cmapss import (
+    CONDITION_TOLERANCE,
+    NOT_PHYSICAL,
+    OPERATING_CONDITIONS,
+    offset_for_test_units,
+)
 from engine_model.validation import InputError
 from tests.cli_checks import assert_user_error, cli_runner
 
@@ -64,7 +69,8 @@ def runner():
 
 def test_columns_map_in_the_documented_order_and_altitude_is_in_feet(files):
     df = read_cmapss_text(files[0])
-    assert list(df.columns) == ["unit", "cycle", "alt", "Mach", "TRA", *CMAPSS_SENSORS]
+    assert list(df.columns) == ["unit", "cycle", "alt", "Mach", "TRA", "condition",
+                                *CMAPSS_SENSORS]
     assert CMAPSS_SENSORS[:4] == ("T2", "T24", "T30", "T50")
     assert CMAPSS_SENSORS[-2:] == ("W31", "W32")
     assert len(df) == sum(TRAIN_CYCLES.values())
@@ -86,7 +92,11 @@ def test_train_rul_counts_down_to_zero_at_the_last_cycle(files):
     assert (df["t"] == 0.0).all() and df["t"].dtype == np.float64
     assert meta == {"source_format": "cmapss-text", "dev_units": [1, 2], "test_units": [],
                     "test_unit_offset": 1000, "source_files": {"train": "train_FD002.txt"},
-                    "cmapss_subset": "FD002", "not_physical": NOT_PHYSICAL}
+                    "cmapss_subset": "FD002", "not_physical": NOT_PHYSICAL,
+                    "settings_snapped": {"train": {}},
+                    "conditions": {"centres": [list(c) for c in OPERATING_CONDITIONS],
+                                   "tolerance": list(CONDITION_TOLERANCE), "rows": {"5": 7}},
+                    "constant_channels": [], "constant_channels_by_condition": {"5": []}}
     assert "sample_rate_hz" not in meta  # one snapshot per cycle: no sample rate
     assert list(df.columns[:8]) == ["unit", "cycle", "t", "RUL", "alt", "Mach", "TRA", "T2"]
 
@@ -214,3 +224,87 @@ def test_an_empty_file_is_an_error(tmp_path):
     empty = write_lines(tmp_path / "train_FD001.txt", ["   "])
     with pytest.raises(InputError, match="no data lines"):
         read_cmapss(empty)
+
+
+# ---------------------------------------------------------------------------------------------
+# the quirks of the real files (written here: the NASA files are never in the project)
+# ---------------------------------------------------------------------------------------------
+
+# an FD001-like row at sea-level static, TRA 100: the settings' noise puts Mach and altitude
+# slightly below zero on some rows, as in the published train_FD001.txt
+FD001_SENSORS = (518.67, 641.82, 1589.70, 1400.60, 14.62, 21.61, 554.36, 2388.06, 9046.19,
+                 1.30, 47.47, 521.66, 2388.02, 8138.62, 8.4195, 0.03, 392, 2388, 100.00,
+                 39.06, 23.4190)
+CONSTANT_FD001 = ("T2", "P2", "epr", "farB", "Nf_dmd", "PCNfR_dmd")
+
+
+def fd001_line(unit, cycle, alt_kft, mach, tra=100.0):
+    """A line with FD001's constant channels constant and every other sensor drifting."""
+    sensors = [s if name in CONSTANT_FD001 else s + 0.01 * cycle
+               for name, s in zip(CMAPSS_SENSORS, FD001_SENSORS, strict=True)]
+    return (f"{unit} {cycle} {alt_kft:.4f} {mach:.4f} {tra:.1f} "
+            + " ".join(f"{v:.4f}" for v in sensors) + "  ")
+
+
+def test_real_file_quirks_crlf_trailing_spaces_and_noisy_settings(tmp_path):
+    """CRLF line endings, two trailing spaces and settings noise below zero (Mach -0.0006,
+    altitude -0.0087 kft): read as they are, Mach snapped to the envelope's 0 and recorded."""
+    rows = [fd001_line(1, 1, -0.0007, -0.0004), fd001_line(1, 2, 0.0019, -0.0006),
+            fd001_line(1, 3, -0.0087, 0.0003), fd001_line(2, 1, 0.0, 0.0)]
+    path = tmp_path / "train_FD001.txt"
+    path.write_bytes(("\r\n".join(rows) + "\r\n").encode())
+    df, meta = read_cmapss(path)
+    assert len(df) == 4
+    assert df["Mach"].tolist() == [0.0, 0.0, 0.0003, 0.0]
+    assert df["alt"].tolist() == pytest.approx([-0.7, 1.9, -8.7, 0.0])  # inside the envelope
+    assert meta["settings_snapped"] == {"train": {"Mach": {"rows": 2, "max_shift": 0.0006}}}
+    assert df["condition"].tolist() == [1, 1, 1, 1] and df["condition"].dtype == np.int64
+    assert meta["conditions"]["rows"] == {"1": 4}
+    assert meta["constant_channels"] == list(CONSTANT_FD001)
+    assert meta["constant_channels_by_condition"] == {"1": list(CONSTANT_FD001)}
+    assert df["T24"].tolist() == pytest.approx([641.83, 641.84, 641.85, 641.83])
+
+
+@pytest.mark.parametrize("setting,values,fragment", [
+    ("Mach", (0.0, -0.02), "column Mach: -0.02 is outside the flight envelope [0, 0.9]"),
+    ("alt", (-1.7, 0.0), "column alt: -1.7 kft is outside the flight envelope [-1500, 45000] ft"),
+    ("TRA", (0.0, 0.0, 107.0), "column TRA: 107 is outside the flight envelope [15, 105]"),
+])
+def test_a_setting_beyond_its_noise_is_an_error_naming_line_and_column(tmp_path, setting,
+                                                                       values, fragment):
+    alt, mach, tra = {"Mach": (0.0, values[1], 100.0), "alt": (values[0], 0.0, 100.0),
+                      "TRA": (0.0, 0.0, values[2] if len(values) > 2 else 100.0)}[setting]
+    path = write_lines(tmp_path / "train_FD001.txt",
+                       [fd001_line(1, 1, 0.0, 0.0), fd001_line(1, 2, alt, mach, tra)])
+    with pytest.raises(InputError) as e:
+        read_cmapss(path)
+    assert str(e.value).startswith(f"{path}: line 2, {fragment}")
+
+
+def test_the_six_operating_conditions_are_labelled_and_others_are_zero(tmp_path):
+    noise = (0.008, -0.002, 0.0)  # FD002's largest setting noise
+    lines = [fd001_line(1, k + 1, a + noise[0], max(m + noise[1], 0.0), tra)
+             for k, (a, m, tra) in enumerate(OPERATING_CONDITIONS)]
+    lines.append(fd001_line(1, 7, 30.0, 0.5, 80.0))  # not a C-MAPSS condition
+    df, meta = read_cmapss(write_lines(tmp_path / "train_FD002.txt", lines))
+    assert df["condition"].tolist() == [1, 2, 3, 4, 5, 6, 0]
+    assert meta["conditions"]["rows"] == {str(k): 1 for k in range(7)}
+    # no two conditions within twice the tolerance: a row is never at two
+    c = np.asarray(OPERATING_CONDITIONS)
+    gap = np.abs(c[:, None, :] - c[None]) > 2 * np.asarray(CONDITION_TOLERANCE)
+    assert all(gap[i, j].any() for i in range(6) for j in range(6) if i != j)
+
+
+def test_import_then_calibrate_runs_on_a_noisy_sea_level_file(runner, tmp_path):
+    """What stopped every real FD001 / FD003 import at calibration (Mach -0.0004 on row 1)
+    now runs: import-cmapss, then calibrate, unchanged."""
+    rows = [fd001_line(1, c, (-1) ** c * 0.004, -0.0004 if c % 2 else 0.0002)
+            for c in range(1, 4)]
+    train = write_lines(tmp_path / "train_FD001.txt", rows)
+    data, feats = tmp_path / "fd001", tmp_path / "features"
+    r = runner.invoke(app, ["data", "import-cmapss", str(train), "--out", str(data)])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--quiet"])
+    assert r.exit_code == 0, r.output
+    df, _ = read_dataset(feats)
+    assert len(df) == 3 and df["HPT_eff_mod_hat"].notna().all()

@@ -26,6 +26,29 @@ sensors 1-21   ``T2 T24 T30 T50`` [degR], ``P2 P15 P30`` [psia], ``Nf Nc`` [rpm]
                [%], ``W31 W32`` [lbm/s]
 =============  ===========================================================================
 
+Quirks of the real files, accepted as they are: lines end in two spaces, copies may have CRLF
+line endings, and the operational settings carry noise (FD001 and FD003: altitude about
++-0.009 kft and Mach about +-0.0007 around sea-level static, so some rows read a slightly
+negative Mach; FD002: +-0.008 kft, +-0.002 Mach around its six conditions; none on TRA).
+
+- **Settings snapped to the flight envelope.** A setting outside the model's flight envelope
+  (:data:`engine_model.validation.ENVELOPE`: altitude -1,500 to 45,000 ft, Mach 0 to 0.9, TRA
+  15 to 105 %) by at most :data:`SNAP_TOLERANCE` (100 ft, 0.01 Mach, 1 % TRA: about ten
+  times the largest setting noise of the public files) is set to the envelope's bound; one
+  further out is an error naming the file, line, column and value. How many rows of each file
+  were moved, and by how much at most, is recorded (``settings_snapped``).
+- **Operating condition** (column ``condition``, int64): the index, 1 to 6, of the C-MAPSS
+  operating condition a row was flown at, :data:`OPERATING_CONDITIONS` (the six regimes of
+  FD002 / FD004, Saxena et al. 2008; FD001 and FD003 fly condition 1, sea-level static at TRA
+  100): the one whose altitude, Mach and TRA are all within :data:`CONDITION_TOLERANCE`
+  (0.5 kft, 0.02, 1 %) of the row's settings; 0 when none is (a file that is not C-MAPSS's).
+  The conditions are far apart (no two are closer than 5 kft), so a row is within the
+  tolerance of at most one. Rows per condition are recorded (``conditions``).
+- **Constant channels**: the sensors that hold one value over every row of the train file
+  (FD001: ``T2 P2 epr farB Nf_dmd PCNfR_dmd``), and per condition, are recorded
+  (``constant_channels``, ``constant_channels_by_condition``); a model can learn nothing from
+  them.
+
 Bookkeeping added: ``t`` = 0.0 (one sample per cycle: a cycle is one snapshot, so there is no
 time within a flight and no sample rate; ``sample_rate_hz`` is not recorded) and ``RUL``
 [cycles]: for a train unit ``last cycle - cycle``; for a test unit ``RUL_file[unit] + last
@@ -39,7 +62,9 @@ published subset, so test unit 7 of FD002 is unit 1007.
 
 Metadata: ``source_format = "cmapss-text"``, ``dev_units`` (the train units), ``test_units``
 (renumbered), ``test_unit_offset``, ``source_files`` (``{"train", "test", "rul"}`` file
-names) and ``cmapss_subset`` (``"FD002"``, when the train file's name says).
+names), ``cmapss_subset`` (``"FD002"``, when the train file's name says), ``not_physical``,
+``settings_snapped``, ``conditions``, ``constant_channels`` and
+``constant_channels_by_condition`` (above).
 """
 
 from __future__ import annotations
@@ -54,7 +79,7 @@ import numpy as np
 import pandas as pd
 
 from ..units import FT_PER_KFT
-from ..validation import InputError
+from ..validation import ENVELOPE, InputError
 from .paths import existing_path
 from .schema import canonical_columns
 
@@ -68,6 +93,19 @@ CMAPSS_COLUMNS = ("unit", "cycle", *CMAPSS_SETTINGS, *CMAPSS_SENSORS)  # the 26 
 TEST_UNIT_STEP = 1000
 _SUBSET = re.compile(r"FD\d{3}", re.IGNORECASE)
 
+#: The six operating conditions of C-MAPSS FD002 / FD004 as (altitude [kft], Mach, TRA [%]),
+#: ``condition`` 1 to 6 in this order (the settings' cluster centres, as in
+#: ``data_samples/cmapss-fd002-operating-points.csv``); FD001 / FD003 fly the first.
+OPERATING_CONDITIONS = ((0.0, 0.0, 100.0), (10.0, 0.25, 100.0), (20.0, 0.70, 100.0),
+                        (25.0, 0.62, 60.0), (35.0, 0.84, 100.0), (42.0, 0.84, 100.0))
+#: a row is at a condition when each of its settings is this close to the condition's
+#: (altitude [kft], Mach, TRA [%]): some 50 times the settings' noise, a tenth of the
+#: smallest distance between two conditions
+CONDITION_TOLERANCE = (0.5, 0.02, 1.0)
+#: how far outside the flight envelope a setting may read and still be snapped to it
+#: (altitude [ft], Mach, TRA [%]): about ten times the largest noise of the public files
+SNAP_TOLERANCE = {"alt": 100.0, "Mach": 0.01, "TRA": 1.0}
+_ENVELOPE_RANGE = {"alt": ENVELOPE.alt_ft, "Mach": ENVELOPE.Mach, "TRA": ENVELOPE.TRA}
 
 
 #: C-MAPSS channels that do not follow their stated definition, so that no physics-based
@@ -77,6 +115,7 @@ _SUBSET = re.compile(r"FD\d{3}", re.IGNORECASE)
 #: operating point (47.5 against 554 psia at sea-level take-off in FD001), which no static
 #: pressure behind a compressor can be; see README, "Model versus C-MAPSS".
 NOT_PHYSICAL = {"Ps30": "about 1/12 of P30 at every point: not a static pressure in psia"}
+
 
 def _lines(path: Path) -> list[tuple[int, list[str]]]:
     """(1-based line number, tokens) of every non-blank line of a text file."""
@@ -125,10 +164,13 @@ def _check_integers(path: Path, rows: list[tuple[int, list[str]]], values: np.nd
 
 def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
     """One ``train_FD00x.txt`` / ``test_FD00x.txt`` file as a table in file order: ``unit``
-    and ``cycle`` (int64), ``alt`` [ft], ``Mach``, ``TRA`` and the 21 sensors (module doc).
+    and ``cycle`` (int64), ``alt`` [ft], ``Mach``, ``TRA`` (snapped to the flight envelope,
+    what moved in ``df.attrs["settings_snapped"]``), ``condition`` (int64) and the 21
+    sensors (module doc).
     Raises InputError naming the file, line and column of a line with the wrong number of
-    columns, a token that is not a number, a NaN, or a unit / cycle that is not a positive
-    integer, and for a file without data lines."""
+    columns, a token that is not a number, a NaN, a unit / cycle that is not a positive
+    integer or a setting outside the flight envelope by more than its noise, and for a file
+    without data lines."""
     p = existing_path(path)
     rows = _lines(p)
     if not rows:
@@ -143,7 +185,52 @@ def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
     df["unit"] = df["unit"].astype(np.int64)
     df["cycle"] = df["cycle"].astype(np.int64)
     df["alt"] = df["alt"] * FT_PER_KFT
+    df.attrs["settings_snapped"] = snap_settings(df, p, [line for line, _ in rows])
+    df.insert(5, "condition", operating_condition(df))
     return df
+
+
+def snap_settings(df: pd.DataFrame, path: Path, lines: Sequence[int]) -> dict[str, dict]:
+    """Snap ``df``'s settings (in place; ``alt`` in ft) to the flight envelope where they
+    are outside it by at most :data:`SNAP_TOLERANCE` (module docstring) -> per moved setting
+    ``{"rows": n, "max_shift": largest move}``. A setting further out is an InputError
+    naming ``path``, the line (``lines[i]`` of row ``i``), the column and the value."""
+    report = {}
+    for name in CMAPSS_SETTINGS:
+        lo, hi = _ENVELOPE_RANGE[name]
+        col = df[name].to_numpy()
+        tol = SNAP_TOLERANCE[name]
+        far = (col < lo - tol) | (col > hi + tol)
+        if far.any():
+            i = int(np.flatnonzero(far)[0])
+            shown = col[i] / FT_PER_KFT if name == "alt" else col[i]
+            unit = " kft" if name == "alt" else ""
+            raise InputError(f"{path}: line {lines[i]}, column {name}: {shown:g}{unit} is"
+                             f" outside the flight envelope [{lo:g}, {hi:g}]"
+                             f"{' ft' if name == 'alt' else ''} by more than the"
+                             f" {tol:g} that setting noise explains")
+        snapped = np.clip(col, lo, hi)
+        moved = snapped != col
+        if moved.any():
+            df[name] = snapped
+            report[name] = {"rows": int(moved.sum()),
+                            "max_shift": float(np.abs(snapped - col).max())}
+    return report
+
+
+def operating_condition(df: pd.DataFrame) -> np.ndarray:
+    """The C-MAPSS operating condition of every row (module docstring): 1 to 6, or 0 when the
+    settings are at none of :data:`OPERATING_CONDITIONS` (``alt`` in ft)."""
+    settings = np.column_stack([df["alt"].to_numpy() / FT_PER_KFT, df["Mach"].to_numpy(),
+                                df["TRA"].to_numpy()])
+    centres = np.asarray(OPERATING_CONDITIONS)
+    near = (np.abs(settings[:, None, :] - centres[None]) <= CONDITION_TOLERANCE).all(axis=2)
+    return np.where(near.any(axis=1), near.argmax(axis=1) + 1, 0).astype(np.int64)
+
+
+def constant_channels(df: pd.DataFrame) -> list[str]:
+    """The sensors of ``df`` that hold a single value over every row."""
+    return [s for s in CMAPSS_SENSORS if s in df.columns and df[s].nunique() <= 1]
 
 
 def read_rul_file(path: str | os.PathLike) -> np.ndarray:
@@ -202,6 +289,7 @@ def read_cmapss(train: str | os.PathLike, test: str | os.PathLike | None = None,
     frames = [dev]
     offset = offset_for_test_units(dev["unit"].unique())
     files = {"train": train_path.name}
+    snapped = {"train": dev.attrs["settings_snapped"]}
     test_units: list[int] = []
     if test is not None:
         test_path, rul_path = existing_path(test), existing_path(rul)
@@ -217,10 +305,12 @@ def read_cmapss(train: str | os.PathLike, test: str | os.PathLike | None = None,
         test_units = [int(u) for u in units + offset]
         frames.append(tst)
         files.update(test=test_path.name, rul=rul_path.name)
+        snapped["test"] = tst.attrs["settings_snapped"]
     df = pd.concat(frames, ignore_index=True)
     df.insert(2, "t", 0.0)
     df = df.sort_values(["unit", "cycle"], kind="stable", ignore_index=True)
     df = df[canonical_columns(df.columns)]
+    counts = df["condition"].value_counts()
     meta: dict[str, Any] = {
         "source_format": CMAPSS_SOURCE,
         "dev_units": sorted(int(u) for u in dev["unit"].unique()),
@@ -228,6 +318,13 @@ def read_cmapss(train: str | os.PathLike, test: str | os.PathLike | None = None,
         "test_unit_offset": offset,
         "source_files": files,
         "not_physical": NOT_PHYSICAL,
+        "settings_snapped": snapped,
+        "conditions": {"centres": [list(c) for c in OPERATING_CONDITIONS],
+                       "tolerance": list(CONDITION_TOLERANCE),
+                       "rows": {str(int(k)): int(counts[k]) for k in sorted(counts.index)}},
+        "constant_channels": constant_channels(dev),
+        "constant_channels_by_condition": {
+            str(int(k)): constant_channels(g) for k, g in dev.groupby("condition")},
     }
     subset = _SUBSET.search(train_path.name)
     if subset:
