@@ -14,6 +14,7 @@ same byte for byte on a rerun); timings are the machine's.
 from __future__ import annotations
 
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -24,6 +25,16 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "pipeline-default"
 RESULTS = ROOT / "benchmarks" / "results" / "pipeline"
 KEPT = ("report.md", "metrics.json", "run.json")
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
 
 
 def main() -> None:
@@ -41,7 +52,7 @@ def main() -> None:
         shutil.copy2(fig, RESULTS / "figures" / fig.name)
     metrics = json.loads((OUT / "metrics.json").read_text())
     run = json.loads((OUT / "run.json").read_text())
-    print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
+    print(f"machine: {platform.machine()}, {_cpu_model()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}")
     print(f"{'inputs':<12} {'RMSE':>7} {'NASA s':>8} {'last-cycle |error|':>20} {'horizon':>8}")
     for inputs, m in metrics["rul"].items():
