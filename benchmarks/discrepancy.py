@@ -7,7 +7,7 @@ after.
     python benchmarks/discrepancy.py --effects customer_bleed,hp_offtake --units 1,2
 
 Resumable: every run is appended to ``--runs`` (JSON lines, default
-``benchmarks/results/discrepancy_runs.jsonl``) as soon as it ends, keyed by (effect, size,
+``benchmarks/results/discrepancy_runs.jsonl.gz``) as soon as it ends, keyed by (effect, size,
 seed, unit, method); a rerun with the same file skips the runs already there, so an
 interrupted benchmark continues where it stopped. The table (``--table``, Markdown) and the
 JSON of the runs asked for (``--out``) are written at the end from the cached runs.
@@ -50,6 +50,8 @@ import numpy as np
 from scipy.stats import binom, binomtest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from run_cache import append_run, read_runs  # noqa: E402  (benchmarks/run_cache.py)
 
 from calibration import CalibrationSetup  # noqa: E402
 from calibration.discrepancy import DiscoverOptions, discover  # noqa: E402
@@ -158,7 +160,7 @@ def main(argv=None):
     ap.add_argument("--out", help="also write the runs of this table as one JSON array "
                     "(the --runs file already holds every run)")
     ap.add_argument("--runs", default=str(Path(__file__).parent / "results" /
-                                           "discrepancy_runs.jsonl"),
+                                           "discrepancy_runs.jsonl.gz"),
                     help="cache of finished runs (JSON lines): a rerun skips them")
     ap.add_argument("--table", default=str(Path(__file__).parent / "results" /
                                             "discrepancy_table.md"))
@@ -178,11 +180,8 @@ def main(argv=None):
     cache_path = Path(a.runs)
     cache_path.parent.mkdir(parents=True, exist_ok=True)
     done = {}
-    if cache_path.exists():
-        for line in cache_path.read_text().splitlines():
-            if line.strip():
-                r = json.loads(line)
-                done[_key(r)] = r
+    for r in read_runs(cache_path):
+        done[_key(r)] = r
     print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'}); "
           f"{len(done)} cached runs in {cache_path}")
     runs = []
@@ -206,8 +205,7 @@ def main(argv=None):
             r = one_run(base, [df], opts, name)
         r.update(size=size, seed=seed, unit=unit, spec=spec, method=a.method)
         done[key] = r
-        with cache_path.open("a") as fh:
-            fh.write(json.dumps(r) + "\n")
+        append_run(cache_path, r)
         print(json.dumps(r), flush=True)
         return r
 

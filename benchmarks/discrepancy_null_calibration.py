@@ -22,7 +22,6 @@ covariance). Runs are cached (JSON lines) so that a rerun continues.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 from pathlib import Path
@@ -31,6 +30,8 @@ import numpy as np
 from scipy.stats import poisson
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from run_cache import append_run, read_runs  # noqa: E402  (benchmarks/run_cache.py)
 
 from calibration.discrepancy.candidates import CandidateModel, build_candidates  # noqa: E402
 from calibration.discrepancy.max_stat import screen  # noqa: E402
@@ -100,16 +101,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", action="append", required=True,
                     help="a seed range, e.g. 1000-1399 (repeat for several blocks)")
-    ap.add_argument("--runs", default=str(RESULTS / "discrepancy_null_calibration.jsonl"))
+    ap.add_argument("--runs", default=str(RESULTS / "discrepancy_null_calibration.jsonl.gz"))
     ap.add_argument("--table", default=str(RESULTS / "discrepancy_null_calibration.md"))
     a = ap.parse_args(argv)
     path = Path(a.runs)
     done = {}
-    if path.exists():
-        for line in path.read_text().splitlines():
-            if line.strip():
-                r = json.loads(line)
-                done[r["seed"]] = r
+    for r in read_runs(path):
+        done[r["seed"]] = r
     base, setup, cache = default_model(), CalibrationSetup(), {}
     blocks = []
     for text in a.seeds:
@@ -117,8 +115,7 @@ def main(argv=None):
         for seed in seed_range(text):
             if seed not in done:
                 done[seed] = one_fleet(base, setup, seed, cache)
-                with path.open("a") as fh:
-                    fh.write(json.dumps(done[seed]) + "\n")
+                append_run(path, done[seed])
             runs.append(done[seed])
         blocks.append((text, runs))
     lines = [f"# Score statistics at the true theta on no-effect fleets ({platform.node()})",

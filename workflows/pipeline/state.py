@@ -51,7 +51,9 @@ def done(out: Path, stage: str, fp: str) -> dict | None:
 
 def mark_done(out: Path, stage: str, fp: str, summary: dict) -> None:
     """Write the marker (last, atomically) and remove the stage's folders of other
-    fingerprints."""
+    fingerprints. ``OUT/stages/`` is the pipeline's working area: every folder in it is one
+    the pipeline made for a stage and a configuration (the report says so), so a folder of a
+    configuration that is no longer the stage's is the pipeline's own and is removed."""
     folder = stage_dir(out, stage, fp)
     write_json(folder / MARKER, {"stage": stage, "fingerprint": fp, "summary": summary})
     for other in (out / STAGES_DIR).glob(f"{stage}-*"):
