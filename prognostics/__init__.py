@@ -13,6 +13,8 @@ One job per module:
 - :mod:`.conformal`    split-conformal prediction intervals
 - :mod:`.checkpoint`   safe save / load (safetensors + JSON, SHA-256 checked)
 - :mod:`.metrics`      RMSE, NASA score, per-cycle mean, prediction horizon, coverage
+- :mod:`.cross_validation` folds of whole units, held-out units truncated as NASA's test
+  files, one score per unit at its last cycle (the C-MAPSS protocol on training units)
 - :mod:`.baseline`     physics-only RUL from the health-index trend of theta_hat
 - :mod:`.outputs`      tables, JSON and text written atomically
 - :mod:`.plots`        figures (matplotlib, Agg)
