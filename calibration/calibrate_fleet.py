@@ -27,8 +27,10 @@ Tasks. The random-walk filters (``ukf``, ``ekf``) run many units in lockstep in 
 samples (longest-processing-time first) and cut into tasks of at most
 :data:`LOCKSTEP_MAX_ROWS` samples; the windowed estimators (``mhe``, ``map_cycle``) get one
 unit per task, longest first. A worker reads only its units from ``data`` (partition pruning),
-so a large fleet is never shipped whole, and the client reads one unit at a time (the checks
-before the work); memory is bounded by the largest task, not by the fleet.
+so a large fleet is never shipped whole, and the client reads the units for the checks before
+the work in groups of at most :data:`LOCKSTEP_MAX_ROWS` samples (:func:`read_groups`: one read
+for a fleet of many short units such as C-MAPSS's); memory is bounded by the largest task or
+group, not by the fleet.
 
 Output (``out``): the paper's feature table, a parquet directory partitioned by unit in the
 layout of :mod:`engine_model.datasets`, one unit written atomically as soon as it is done
@@ -316,16 +318,52 @@ def dataset_units(data, units: Sequence[int] | None = None) -> list[int]:
     return sorted(int(u) for u in keys["unit"].unique())
 
 
+def unit_rows(data, units: Sequence[int]) -> dict[int, int] | None:
+    """Each unit's row count from the part files' footers of a parquet directory by unit
+    (nothing is read but the footers), or None for any other layout."""
+    import pyarrow.parquet as pq
+
+    p = Path(data)
+    if not p.is_dir():
+        return None
+    try:
+        return {int(u): pq.read_metadata(p / f"unit={u}" / datasets.PARQUET_PART).num_rows
+                for u in units}
+    except (OSError, ValueError):  # not readable as parquet: read unit by unit
+        return None
+
+
+def read_groups(units: Sequence[int], rows: dict[int, int] | None,
+                max_rows: int = LOCKSTEP_MAX_ROWS) -> list[list[int]]:
+    """``units`` in order, in consecutive groups of at most ``max_rows`` rows (at least one
+    unit each); one unit a group when the row counts are unknown."""
+    if rows is None:
+        return [[u] for u in units]
+    groups, size = [], 0
+    for u in units:
+        if groups and size + rows[u] <= max_rows:
+            groups[-1].append(u)
+            size += rows[u]
+        else:
+            groups.append([u])
+            size = rows[u]
+    return groups
+
+
 def _units_of(data, df_all, lengths):
-    """Yield ``(unit, frame)`` one unit at a time (a path is read unit by unit, with the rows
-    of the user's file as the index)."""
+    """Yield ``(unit, frame)`` in unit order, with the rows of the user's file as the index: a
+    path is read in groups of units of at most :data:`LOCKSTEP_MAX_ROWS` rows (one read for a
+    fleet of many short units, one unit at a time for long ones)."""
     if df_all is not None:
         for u, f in unit_frames(df_all).items():
             yield u, f
         return
-    for u in sorted(lengths):
-        df, _ = datasets.read_dataset(data, units=[u], source_rows=True)
-        yield u, unit_frames(df)[u]
+    units = sorted(lengths)
+    for group in read_groups(units, unit_rows(data, units)):
+        df, _ = datasets.read_dataset(data, units=group, source_rows=True)
+        frames = unit_frames(df)
+        for u in group:
+            yield u, frames[u]
 
 
 def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = None,

@@ -8,11 +8,18 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
 from calibration import CalibrationSetup, get_estimator
-from calibration.calibrate_fleet import calibrate_fleet, features_of, plan_tasks
+from calibration.calibrate_fleet import (
+    calibrate_fleet,
+    features_of,
+    plan_tasks,
+    read_groups,
+    unit_rows,
+)
 from calibration.compare import compare, format_report
 from calibration.crb import unit_posterior_crb, unit_sensitivities, windowed_crb
 from calibration.result import HAT_NAMES
@@ -270,3 +277,18 @@ def test_cli_bad_input_is_one_line(small, tmp_path, args, fragment):
 def test_cli_missing_data_file(tmp_path):
     r = runner.invoke(app, ["calibrate", str(tmp_path / "nope"), "--out", str(tmp_path / "f")])
     assert r.exit_code == 2 and "no such file" in r.output
+
+
+def test_the_client_reads_short_units_in_groups_bounded_by_rows(tmp_path):
+    """The checks before the work read many short units at once (C-MAPSS: one read for a
+    fleet), in unit order, never more than the row budget a group unless one unit is larger;
+    row counts come from the part files' footers."""
+    rows = {1: 150, 2: 200, 3: 700, 4: 90, 5: 40}
+    assert read_groups([1, 2, 3, 4, 5], rows, max_rows=400) == [[1, 2], [3], [4, 5]]
+    assert read_groups([1, 2, 3, 4, 5], rows, max_rows=10_000) == [[1, 2, 3, 4, 5]]
+    assert read_groups([1, 2], None) == [[1], [2]]  # unknown sizes: one unit a read
+    df = pd.DataFrame({"unit": np.repeat([1, 2], [3, 5]), "cycle": np.r_[1:4, 1:6],
+                       "alt": 0.0, "Mach": 0.0, "TRA": 100.0, "T2": 518.67})
+    path = datasets.write_parquet(df, tmp_path / "fleet", {})
+    assert unit_rows(path, [1, 2]) == {1: 3, 2: 5}
+    assert unit_rows(tmp_path / "fleet.h5", [1]) is None
