@@ -26,13 +26,16 @@ def train(
     features: Annotated[Path, typer.Argument(help="Feature table (parquet from hyprog "
                                              "calibrate, or any table with its columns).")],
     out: Annotated[Path, typer.Option("--out", help="Model directory to write.")],
-    model: Annotated[str, typer.Option("--model", help="fnn or cnn.")] = "cnn",
+    model: Annotated[str, typer.Option(
+        "--model", help="fnn or cnn (the paper's), or dcnn (Li, Ding & Sun 2018's deeper CNN "
+        "with dropout; window 30).")] = "cnn",
     inputs: Annotated[str, typer.Option("--inputs", help=INPUTS_HELP)] = "hybrid",
     units: Annotated[str | None, typer.Option(
         "--units",
         help="Development units to train on (default: the metadata's dev_units).")] = None,
     window: Annotated[int | None, typer.Option(
-        "--window", help="CNN window length (default 50); the FNN takes one time step.")] = None,
+        "--window", help="Window length (default 50 CNN, 30 DCNN); the FNN takes one time "
+        "step.")] = None,
     stride: Annotated[int, typer.Option("--stride", help="Window step.")] = 1,
     max_rul: Annotated[float | None, typer.Option(
         "--max-rul", help="Cap the RUL target (piecewise linear; default: no cap).")] = None,
@@ -40,11 +43,33 @@ def train(
     ensemble: Annotated[int, typer.Option(
         "--ensemble", help="Networks to train, seeds seed..seed+N-1 (mean and spread).")] = 1,
     epochs: Annotated[int | None, typer.Option(
-        "--epochs", help="Maximum epochs (default: 60 FNN, 30 CNN).")] = None,
+        "--epochs", help="Maximum epochs (default: 60 FNN, 30 CNN, 250 DCNN, raised to at "
+        "least 5,000 optimiser steps).")] = None,
+    batch_size: Annotated[int | None, typer.Option(
+        "--batch-size", help="Mini-batch size (default: 1024, halved until an epoch has 64 "
+        "batches).")] = None,
+    lr: Annotated[float, typer.Option("--lr", help="Initial learning rate (Adam).")] = 1e-3,
+    patience: Annotated[int | None, typer.Option(
+        "--patience", help="Early-stopping patience in epochs (default: 5, raised to at "
+        "least 2,000 optimiser steps).")] = None,
+    schedule: Annotated[str, typer.Option(
+        "--schedule", help="plateau (learning rate / 10 when validation stalls for half the "
+        "patience) or constant (the paper's).")] = "plateau",
+    normalise: Annotated[str, typer.Option(
+        "--normalise", help="auto (condition when the table has a 'condition' column with "
+        "several conditions, as C-MAPSS FD002/FD004 imports have; else minmax), minmax (the "
+        "paper's, over the fleet) or condition (sensors standardised per operating "
+        "condition).")] = "auto",
+    keep_constant: Annotated[bool, typer.Option(
+        "--keep-constant", help="Keep input columns that are constant over the training rows "
+        "(dropped by default).")] = False,
+    validation: Annotated[str, typer.Option(
+        "--validation", help="auto (whole units when the table has one sample per cycle, "
+        "else 10 % of the flights), flights or units.")] = "auto",
     val_units: Annotated[str | None, typer.Option(
-        "--val-units", help="Validate on these whole units instead of 10 % of the flights, "
-        "or 'seed': 10 % of the training units drawn by the seed (use it for C-MAPSS tables, "
-        "which have one sample per cycle).")
+        "--val-units", help="Validate on these whole units, or 'seed': 10 % of the training "
+        "units drawn by the seed (what --validation auto does for one-sample-per-cycle "
+        "tables).")
     ] = None,
     conformal_units: Annotated[str | None, typer.Option(
         "--conformal-units", help="Development units held out to calibrate a conformal "
@@ -56,11 +81,15 @@ def train(
     quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
-    """Train the paper's FNN or 1-D CNN on a feature table and save it (weights, scaler,
-    inputs, interval) to MODEL_DIR. An existing MODEL_DIR is replaced only when it is a model
-    hyprog wrote that holds nothing else (or with --overwrite); never the FEATURES it reads.
+    """Train the paper's FNN or 1-D CNN, or Li et al.'s DCNN, on a feature table and save it
+    (weights, scaler, inputs, interval) to MODEL_DIR. An existing MODEL_DIR is replaced only
+    when it is a model hyprog wrote that holds nothing else (or with --overwrite); never the
+    FEATURES it reads.
 
     Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
+
+    C-MAPSS: hyprog train fd002-features --model dcnn --inputs w+cmapss+theta_hat --max-rul 125
+    --out models/fd002
     """
     from engine_model.datasets import read_dataset
     from engine_model.runtime import output_lock
@@ -76,8 +105,10 @@ def train(
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
         cfg = TrainConfig(model=model, inputs=inputs, window=window, stride=stride,
-                          max_rul=max_rul, seed=seed, epochs=epochs,
-                          validation="units" if vu or by_seed else "flights",
+                          max_rul=max_rul, seed=seed, epochs=epochs, batch_size=batch_size,
+                          lr=lr, patience=patience, schedule=schedule, normalise=normalise,
+                          drop_constant=not keep_constant,
+                          validation="units" if vu or by_seed else validation,
                           val_units=tuple(vu) if vu else None,
                           units=tuple(parse_units(units) or []) or None,
                           conformal_units=tuple(cu), alpha=alpha, device=device)
@@ -89,6 +120,9 @@ def train(
     rep = {"out": str(out), "model": rul.config.model, "inputs": rul.config.inputs,
            "columns": list(rul.columns), "window": rul.window, "max_rul": rul.config.max_rul,
            "parameters": rul.members[0].parameters,
+           "dropped_constant": list(rul.info.get("dropped_constant", [])),
+           "batch_size": rul.config.batch_size, "epochs": rul.config.epochs,
+           "patience": rul.config.patience, "validation": rul.config.validation,
            "members": [{"seed": m.seed, "best_epoch": m.best_epoch, "epochs_run": len(m.history),
                         "val_loss": m.history[m.best_epoch - 1]["val_loss"],
                         "train_loss": m.history[m.best_epoch - 1]["train_loss"]}
@@ -99,7 +133,11 @@ def train(
         return
     c = console()
     c.print(f"{rep['model'].upper()} on {len(rep['columns'])} inputs ({rep['inputs']}), window "
-            f"{rep['window']}: {rep['parameters']:,} trainable parameters")
+            f"{rep['window']}: {rep['parameters']:,} trainable parameters; batch "
+            f"{rep['batch_size']}, at most {rep['epochs']} epochs, patience {rep['patience']}, "
+            f"validation on {rep['validation']}")
+    if rep["dropped_constant"]:
+        c.print(f"dropped constant input(s): {', '.join(rep['dropped_constant'])}")
     for m in rep["members"]:
         val = "-" if m["val_loss"] is None else f"{m['val_loss']:.4g}"
         c.print(f"seed {m['seed']}: best epoch {m['best_epoch']} of {m['epochs_run']}, "

@@ -53,12 +53,12 @@ from engine_model.runtime.ownership import OutputKind, check_output
 from engine_model.validation import InputError
 
 from .conformal import SplitConformal
-from .scaling import MinMaxScaler
+from .scaling import scaler_from_dict
 from .train_config import TrainConfig
 from .training import Member
 
 FORMAT = "hyprog-prognostics"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: size-rule config fields, per-condition scaler, dropped columns
 MANIFEST = "model.json"
 
 
@@ -86,6 +86,7 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
             "hyprog_version": model.info.get("hyprog_version", hyprog_version()),
             "config": model.config.to_dict(), "columns": list(model.columns),
             "scaler": model.scaler.to_dict(),
+            "dropped_constant": list(model.info.get("dropped_constant", [])),
             "conformal": None if model.conformal is None else model.conformal.to_dict(),
             "members": members}
     body["sha256"] = sha256_bytes(_canonical(body))
@@ -207,7 +208,8 @@ def load_model(path: str | os.PathLike):
     try:
         config = TrainConfig.from_dict(body["config"]).resolved()
         columns = tuple(str(c) for c in body["columns"])
-        scaler = MinMaxScaler.from_dict(body["scaler"])
+        scaler = scaler_from_dict(body["scaler"])
+        dropped = [str(c) for c in body.get("dropped_constant", [])]
         conformal = None if body["conformal"] is None else \
             SplitConformal.from_dict(body["conformal"])
         entries = list(body["members"])
@@ -219,6 +221,7 @@ def load_model(path: str | os.PathLike):
         raise InputError(f"{p / MANIFEST}: no trained members")
     members = [_load_member(p, e) for e in entries]
     model = RulModel(config, columns, scaler, members, conformal,
-                     info={"hyprog_version": version, "path": str(p)})
+                     info={"hyprog_version": version, "path": str(p),
+                           "dropped_constant": dropped})
     model.networks()  # weights must fit the recorded network
     return model

@@ -16,6 +16,13 @@ Prediction on a table uses the model's recorded columns (a missing one is an err
 it), its scaler, and windows over each unit as a whole (:mod:`.windows`): a sample gets a
 prediction when a full window ends at it; a unit shorter than the window is left-padded with
 its first row and gets one prediction at its last sample.
+
+A model trained on capped targets ``min(RUL, max_rul)`` has its predictions **capped like
+the targets**: ``RUL_pred`` clipped to ``[0, max_rul]`` (the conformal interval is
+calibrated on, and placed around, the clipped prediction), the
+convention of the C-MAPSS literature (the network was never taught a RUL above the cap or
+below zero); ``RUL_std`` is the members' raw spread. Without a cap (the paper's setting) the
+ensemble mean is reported as it is.
 """
 
 from __future__ import annotations
@@ -34,7 +41,7 @@ from .conformal import SplitConformal
 from .features import TARGET, check_table, sort_table
 from .metrics import evaluate_predictions
 from .models import build_model
-from .scaling import MinMaxScaler
+from .scaling import Scaler
 from .splits import CONFORMAL, TRAIN, segments
 from .train_config import TrainConfig
 from .training import (
@@ -55,7 +62,7 @@ class RulModel:
 
     config: TrainConfig
     columns: tuple[str, ...]
-    scaler: MinMaxScaler
+    scaler: Scaler
     members: list[Member]
     conformal: SplitConformal | None = None
     info: dict = field(default_factory=dict)  # e.g. the hyprog version it was trained with
@@ -97,7 +104,7 @@ class RulModel:
                              "model was trained on")
         frame = sort_table(df)
         check_table(frame, self.columns, source, target=False)
-        x = self.scaler.transform_frame(frame)
+        x = self.scaler.transform_frame(frame, source=source)
         unit = frame["unit"].to_numpy()
         a, b = segments(unit, np.zeros(len(unit), np.int8))
         win = make_windows(x, a, b, self.window, 1)
@@ -115,7 +122,9 @@ class RulModel:
                               for net in nets])
         keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
         out = frame[keep].iloc[win.rows].reset_index(drop=True)
-        out["RUL_pred"] = preds.mean(axis=0)
+        mean = preds.mean(axis=0)
+        cap = self.config.max_rul
+        out["RUL_pred"] = mean if cap is None else np.clip(mean, 0.0, cap)
         if len(preds) > 1:
             out["RUL_std"] = preds.std(axis=0, ddof=1)
         if self.conformal is not None:
@@ -148,12 +157,15 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         label = f"{cfg.model} {cfg.inputs} seed {s}"
         with progress_bar(len(prep.windows[TRAIN]), label, quiet) as (on_batch, on_epoch):
             members.append(train_member(prep, s, device, on_batch, on_epoch))
-    model = RulModel(cfg, tuple(prep.columns), prep.scaler, members)
+    model = RulModel(cfg, tuple(prep.columns), prep.scaler, members,
+                     info={"dropped_constant": list(prep.dropped)})
     conf = prep.windows.get(CONFORMAL)
     if conf is not None and len(conf):
         with deterministic(device):
             preds = np.mean([predict_windows(net, conf, device)
                              for net in model.networks(device)], axis=0)
+        if cfg.max_rul is not None:
+            preds = np.clip(preds, 0.0, cfg.max_rul)  # as RulModel.predict reports it
         y_true = prep.frame[TARGET].to_numpy(np.float64)[conf.rows]
         model.conformal = SplitConformal.calibrate(y_true, preds, cfg.alpha,
                                                    sorted(set(cfg.conformal_units)))

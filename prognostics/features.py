@@ -15,6 +15,9 @@ Groups (each resolves to the listed columns *that the table has*, in this order)
 ``theta_hat``  ``<q>_hat`` for q in ``THETA_NAMES``        calibrated health parameters
 ``theta``      true ``q`` for every ``<q>_hat`` present     perfect calibration (if no ``_hat``
                                                             in the table: every true theta)
+``cmapss``     the 21 C-MAPSS sensors as hyprog reads them  every measured channel of NASA's
+               (``datasets.cmapss.CMAPSS_SENSORS``)         files, also those outside x_s
+                                                            (epr, NRf, NRc, BPR, htBleed, ...)
 
 Named sets (the paper's, Sec. 4.2 and ablation III)
 ----------------------------------------------------
@@ -44,12 +47,13 @@ import numpy as np
 import pandas as pd
 
 from engine_model.channels import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from engine_model.datasets.cmapss import CMAPSS_SENSORS
 from engine_model.validation import InputError
 
 KEYS = ("unit", "cycle")
 TARGET = "RUL"
 
-GROUPS = ("w", "xs", "xs_hat", "xv", "xv_hat", "theta_hat", "theta")
+GROUPS = ("w", "xs", "xs_hat", "xv", "xv_hat", "theta_hat", "theta", "cmapss")
 
 INPUT_SETS: dict[str, tuple[str, ...]] = {
     "data-driven": ("w", "xs"),
@@ -75,6 +79,8 @@ def group_columns(group: str, columns: Sequence[str]) -> list[str]:
         cand = [c + "_hat" for c in XV_NAMES]
     elif group == "theta_hat":
         cand = [q + "_hat" for q in THETA_NAMES]
+    elif group == "cmapss":
+        cand = list(CMAPSS_SENSORS)
     elif group == "theta":
         estimated = [q for q in THETA_NAMES if q + "_hat" in have]
         cand = estimated or list(THETA_NAMES)

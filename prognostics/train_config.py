@@ -3,8 +3,35 @@ networks' defaults, without importing torch (a configuration is read, checked an
 without loading the training machinery).
 
 The paper's settings (Sec. 4.3-4.4): the FNN sees one time step and trains at most 60
-epochs, the CNN a window of 50 samples and at most 30 epochs; mini-batches of 1024, learning
-rate 1e-3, early-stopping patience 5.
+epochs, the CNN a window of 50 samples and at most 30 epochs; mini-batches of 1024, constant
+learning rate 1e-3, early-stopping patience 5, validation on 10 % of the flights
+(:data:`PAPER_RECIPE`, what the paper experiment trains with). Those settings were made for
+about 5 M samples (some 5,000 optimiser steps an epoch); a C-MAPSS subset has 20 k rows and one
+sample per cycle, where 30 epochs at batch 1024 are some 500 steps. The defaults therefore
+follow the size of the data (:func:`size_rules`, applied once the training windows are known;
+the model stores the values used):
+
+- ``validation="auto"``: whole held-out units (``"units"``) when the table has one sample per
+  cycle, where a validation "flight" would be one row; the paper's flights otherwise.
+- ``batch_size=None``: the paper's 1024 when that still gives :data:`MIN_BATCHES` batches an
+  epoch, else the largest power of two that does (at least :data:`MIN_BATCH`).
+- ``epochs=None``: the model's default (:data:`DEFAULT_EPOCHS`), raised so that the budget is
+  at least :data:`MIN_STEPS` optimiser steps.
+- ``patience=None``: 5 epochs (the paper's), raised to at least :data:`PATIENCE_STEPS`
+  optimiser steps, so that a small table does not stop on a few noisy epochs.
+- ``schedule="plateau"``: the learning rate falls tenfold when the validation loss has not
+  improved for half the patience, down to 1 % of ``lr`` (``"constant"``: the paper's).
+- ``normalise="auto"``: ``"condition"`` (standardised per operating condition,
+  :mod:`.scaling`; the standard for C-MAPSS FD002 / FD004) when the table has a ``condition``
+  column whose training rows all carry a condition (none is 0) and hold more than one;
+  ``"minmax"`` (the paper's min-max scaling over the fleet) otherwise.
+- ``drop_constant=True``: input columns constant over the training rows (within every
+  condition, with ``normalise="condition"``) are dropped and recorded.
+
+The numbers (:data:`MIN_BATCHES` 16, :data:`MIN_STEPS` 5,000, :data:`PATIENCE_STEPS` 2,000)
+were set once, for C-MAPSS FD001 by cross-validation on its training units
+(``benchmarks/cmapss.py``), not per data set; at the paper's 5 M samples every rule gives the
+paper's value back.
 """
 
 from __future__ import annotations
@@ -13,9 +40,20 @@ from dataclasses import asdict, dataclass, replace
 
 from engine_model.validation import InputError
 
-MODEL_KINDS = ("fnn", "cnn")
-DEFAULT_EPOCHS = {"fnn": 60, "cnn": 30}
-DEFAULT_WINDOW = {"fnn": 1, "cnn": 50}
+MODEL_KINDS = ("fnn", "cnn", "dcnn")
+DEFAULT_EPOCHS = {"fnn": 60, "cnn": 30, "dcnn": 250}  # dcnn: Li, Ding & Sun 2018
+DEFAULT_WINDOW = {"fnn": 1, "cnn": 50, "dcnn": 30}
+SCHEDULES = ("plateau", "constant")
+NORMALISATIONS = ("auto", "minmax", "condition")
+VALIDATIONS = ("auto", "flights", "units")
+PAPER_BATCH, PAPER_PATIENCE = 1024, 5
+MIN_BATCHES = 16
+MIN_BATCH = 32
+MIN_STEPS = 5_000
+PATIENCE_STEPS = 2_000
+#: The paper's training recipe (module docstring), for :func:`dataclasses.replace`.
+PAPER_RECIPE = {"batch_size": PAPER_BATCH, "patience": PAPER_PATIENCE, "schedule": "constant",
+                "normalise": "minmax", "drop_constant": False, "validation": "flights"}
 
 
 @dataclass(frozen=True)
@@ -28,12 +66,15 @@ class TrainConfig:
     stride: int = 1
     max_rul: float | None = None
     seed: int = 0
-    epochs: int | None = None  # None: 60 (FNN) / 30 (CNN)
-    batch_size: int = 1024
+    epochs: int | None = None  # None: by data size (module docstring)
+    batch_size: int | None = None  # None: by data size
     lr: float = 1e-3
-    patience: int = 5
+    patience: int | None = None  # None: by data size
+    schedule: str = "plateau"
+    normalise: str = "auto"
+    drop_constant: bool = True
     val_fraction: float = 0.1
-    validation: str = "flights"
+    validation: str = "auto"
     val_units: tuple[int, ...] | None = None
     units: tuple[int, ...] | None = None  # development units (default: the metadata's)
     test_units: tuple[int, ...] | None = None  # default: the metadata's
@@ -42,22 +83,46 @@ class TrainConfig:
     device: str = "auto"
 
     def resolved(self) -> TrainConfig:
-        """Defaults filled in and values checked."""
+        """The window filled in and values checked; the size rules (epochs, batch size,
+        patience, validation) stay None / "auto" until :func:`size_rules`."""
         if self.model not in MODEL_KINDS:
             raise InputError(f"unknown model {self.model!r}; one of {', '.join(MODEL_KINDS)}")
+        for name, allowed in (("schedule", SCHEDULES), ("normalise", NORMALISATIONS),
+                              ("validation", VALIDATIONS)):
+            if getattr(self, name) not in allowed:
+                raise InputError(f"{name} must be one of {', '.join(allowed)}, got "
+                                 f"{getattr(self, name)!r}")
         c = replace(self,
-                    window=DEFAULT_WINDOW[self.model] if self.window is None else self.window,
-                    epochs=DEFAULT_EPOCHS[self.model] if self.epochs is None else self.epochs)
-        for name in ("window", "stride", "epochs", "batch_size"):
-            if int(getattr(c, name)) < 1:
-                raise InputError(f"{name} must be >= 1, got {getattr(c, name)}")
-        if c.patience < 1:
-            raise InputError(f"patience must be >= 1, got {c.patience}")
+                    window=DEFAULT_WINDOW[self.model] if self.window is None else self.window)
+        for name in ("window", "stride", "epochs", "batch_size", "patience"):
+            v = getattr(c, name)
+            if v is not None and int(v) < 1:
+                raise InputError(f"{name} must be >= 1, got {v}")
         if c.max_rul is not None and c.max_rul <= 0:
             raise InputError(f"max_rul must be positive, got {c.max_rul}")
         if not c.lr > 0:
             raise InputError(f"learning rate must be positive, got {c.lr}")
         return c
+
+    def sized(self, n_windows: int, one_per_cycle: bool) -> TrainConfig:
+        """The size rules of the module docstring for ``n_windows`` training windows (an
+        estimate before the validation split is fine: the rules are coarse) and a table with
+        (``one_per_cycle``) or without one sample per cycle."""
+        c = self.resolved()
+        batch = c.batch_size
+        if batch is None:
+            batch = PAPER_BATCH
+            while batch > MIN_BATCH and n_windows < MIN_BATCHES * batch:
+                batch //= 2
+        steps = max(1, -(-max(n_windows, 1) // batch))  # optimiser steps an epoch
+        epochs = c.epochs if c.epochs is not None else \
+            max(DEFAULT_EPOCHS[c.model], -(-MIN_STEPS // steps))
+        patience = c.patience if c.patience is not None else \
+            max(PAPER_PATIENCE, -(-PATIENCE_STEPS // steps))
+        validation = c.validation if c.validation != "auto" else \
+            ("units" if one_per_cycle else "flights")
+        return replace(c, batch_size=batch, epochs=epochs, patience=patience,
+                       validation=validation)
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -11,16 +11,22 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
 1. development and test units (:func:`splits.development_and_test_units`), the input columns
    (:func:`features.resolve_inputs`), roles per row (:func:`splits.assign_roles`: validation
    flights or units, conformal units);
-2. min-max scaler fitted on the **training rows only** (:mod:`.scaling`);
+2. the scaler (min-max, or per operating condition) fitted on the **training rows only**
+   (:mod:`.scaling`); with ``drop_constant``, input columns constant over those rows are
+   dropped (:attr:`Prepared.dropped`);
 3. windows inside each unit-and-role segment (:mod:`.windows`), target ``min(RUL, max_rul)``
-   at the window's last row (``max_rul`` None: no cap, the paper's setting);
-4. per seed: initialise, train, early-stop, restore the best epoch;
+   at the window's last row (``max_rul`` None: no cap, the paper's setting); the size rules
+   of :mod:`.train_config` fill in the batch size, epochs and patience from the number of
+   training windows;
+4. per seed: initialise, train (learning rate held, or cut tenfold on a validation plateau),
+   early-stop, restore the best epoch;
 5. with conformal units: the ensemble mean on their windows calibrates a split-conformal
    interval (:mod:`.conformal`).
 
 Reproducibility: the initial weights come from a generator seeded by the seed, the batch order
 from a second generator seeded by the seed + 1 (a CPU ``torch.Generator``, also when training
-on CUDA), there are no DataLoader workers, and :func:`deterministic` switches on torch's
+on CUDA), dropout masks (DCNN) from torch's global generator seeded by the seed + 2 when the
+member starts, there are no DataLoader workers, and :func:`deterministic` switches on torch's
 deterministic algorithms (and deterministic cuBLAS / cuDNN on CUDA). Same seed, same data,
 same device and thread count -> the same weights and losses, bit for bit.
 
@@ -35,7 +41,7 @@ import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -46,7 +52,7 @@ from engine_model.validation import InputError
 
 from .features import TARGET, check_table, resolve_inputs, sort_table
 from .models import build_model, parameter_count
-from .scaling import MinMaxScaler
+from .scaling import CONDITION, Scaler, fit_scaler
 from .splits import (
     CONFORMAL,
     TRAIN,
@@ -59,6 +65,8 @@ from .train_config import TrainConfig
 from .windows import Windows, make_windows
 
 EVAL_BATCH = 8192
+PLATEAU_FACTOR = 0.1  # learning rate x 0.1 on a plateau of half the patience ...
+PLATEAU_FLOOR = 0.01  # ... down to 1 % of the configured rate
 
 
 @dataclass
@@ -78,12 +86,13 @@ class Prepared:
 
     config: TrainConfig
     columns: list[str]
-    scaler: MinMaxScaler
+    scaler: Scaler
     frame: pd.DataFrame  # the development rows (unit, cycle, t, RUL), sorted
     roles: np.ndarray
     windows: dict[int, Windows]
     dev_units: list[int]
     test_units: list[int]
+    dropped: list[str] = field(default_factory=list)  # constant input columns left out
 
 
 def resolve_device(name: str) -> torch.device:
@@ -127,12 +136,28 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     frame = sort_table(df if every_unit else df[df["unit"].isin(dev)])
     check_table(frame, columns, source)
     unit = frame["unit"].to_numpy()
-    roles = assign_roles(unit, frame["cycle"].to_numpy(), dev, (), seed=cfg.seed,
+    cycle = frame["cycle"].to_numpy()
+    one_per_cycle = bool(np.all((unit[1:] != unit[:-1]) | (cycle[1:] != cycle[:-1])))
+    cfg = replace(cfg, validation=cfg.sized(len(frame), one_per_cycle).validation)
+    roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,
                          val_fraction=cfg.val_fraction, validation=cfg.validation,
                          val_units=cfg.val_units, conformal_units=cfg.conformal_units,
                          source=source)
-    scaler = MinMaxScaler.fit_frame(frame, columns, roles == TRAIN)
-    x = scaler.transform_frame(frame)
+    if cfg.normalise == "auto":
+        cond = frame[CONDITION].to_numpy()[roles == TRAIN] if CONDITION in frame.columns \
+            else np.zeros(0)
+        by_condition = cond.size > 0 and bool(np.all(cond != 0)) and len(np.unique(cond)) > 1
+        cfg = replace(cfg, normalise="condition" if by_condition else "minmax")
+    scaler = fit_scaler(cfg.normalise, frame, columns, roles == TRAIN, source)
+    dropped: list[str] = []
+    if cfg.drop_constant:
+        dropped = [c for c, k in zip(columns, scaler.constant, strict=True) if k]
+        if len(dropped) == len(columns):
+            raise InputError(f"{source}: every input column is constant over the training "
+                             f"rows ({', '.join(columns)})")
+        columns = [c for c in columns if c not in set(dropped)]
+        scaler = scaler.subset(columns)
+    x = scaler.transform_frame(frame, source=source)
     y = frame[TARGET].to_numpy(np.float64)
     if cfg.max_rul is not None:
         y = np.minimum(y, cfg.max_rul)
@@ -143,8 +168,10 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         pick = seg_role == role
         if pick.any():
             windows[role] = make_windows(x, a[pick], b[pick], cfg.window, cfg.stride, y)
+    train = windows.get(TRAIN)
+    cfg = cfg.sized(0 if train is None else len(train), one_per_cycle)
     keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
-    return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test)
+    return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test, dropped)
 
 
 def predict_windows(net: nn.Module, windows: Windows, device: torch.device,
@@ -182,9 +209,15 @@ def train_member(prep: Prepared, seed: int, device: torch.device,
     if train is None or len(train) == 0:
         raise InputError("no training windows (every training row is validation?)")
     val = prep.windows.get(VALIDATION)
-    with deterministic(device):
+    forked = torch.random.fork_rng(devices=[device] if device.type == "cuda" else [])
+    with deterministic(device), forked:  # the caller's global RNG state is restored after
+        torch.manual_seed(int(seed) + 2)  # dropout masks (module docstring)
         net = build_model(cfg.model, len(prep.columns), cfg.window, seed=seed).to(device)
         opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, amsgrad=True)
+        plateau = None if cfg.schedule == "constant" else \
+            torch.optim.lr_scheduler.ReduceLROnPlateau(
+                opt, mode="min", factor=PLATEAU_FACTOR, patience=max(1, cfg.patience // 2),
+                min_lr=cfg.lr * PLATEAU_FLOOR)
         order = torch.Generator().manual_seed(int(seed) + 1)
         tw = train.to(device)
         n = len(tw)
@@ -208,10 +241,13 @@ def train_member(prep: Prepared, seed: int, device: torch.device,
             train_loss = total / n
             val_loss = _mse(net, val, device) if val is not None and len(val) else None
             history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss,
+                            "lr": float(opt.param_groups[0]["lr"]),
                             "seconds": time.perf_counter() - t0})
             if on_epoch is not None:
                 on_epoch(epoch, cfg.epochs, train_loss, val_loss)
             score = train_loss if val_loss is None else val_loss
+            if plateau is not None:
+                plateau.step(score)
             if score < best:
                 best, best_epoch, bad = score, epoch, 0
                 best_state = copy.deepcopy(net.state_dict())

@@ -71,7 +71,7 @@ from prognostics.ensemble import fit
 from prognostics.metrics import evaluate_predictions
 from prognostics.outputs import write_json, write_table
 from prognostics.splits import development_and_test_units
-from prognostics.train_config import TrainConfig
+from prognostics.train_config import DEFAULT_EPOCHS, PAPER_RECIPE, TrainConfig
 
 from .paper_report import write_report
 from .plan import PERFECT, PERTURBATIONS, ExperimentConfig, Run, plan
@@ -141,10 +141,14 @@ def perfect_calibration(df: pd.DataFrame,
 
 
 def train_config(run: Run, cfg: ExperimentConfig, test_units: Sequence[int]) -> TrainConfig:
-    return TrainConfig(model=run.model, inputs=run.inputs, seed=run.seed, epochs=cfg.epochs,
+    """The run's configuration with the paper's recipe (:data:`PAPER_RECIPE`: batch 1024,
+    patience 5, constant learning rate, min-max scaling, validation flights), not the
+    library's size-dependent defaults."""
+    epochs = DEFAULT_EPOCHS[run.model] if cfg.epochs is None else cfg.epochs  # the paper's
+    return TrainConfig(model=run.model, inputs=run.inputs, seed=run.seed, epochs=epochs,
                        units=run.units, test_units=tuple(test_units),
                        conformal_units=run.conformal_units, alpha=cfg.alpha,
-                       device=cfg.device).resolved()
+                       device=cfg.device, **PAPER_RECIPE).resolved()
 
 
 def is_experiment_folder(path: Path) -> bool:

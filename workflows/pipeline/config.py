@@ -60,7 +60,7 @@ table            key                  meaning [default]
                  ``drift``            ``"mle"`` or a number [mle]
                  ``n_draws``          draws of the family-wise critical value [20000]
                  ``augment``          add what was found and recalibrate (``--augment``) [false]
-``train``        ``model``            ``cnn`` or ``fnn`` [cnn]
+``train``        ``model``            ``cnn``, ``fnn`` or ``dcnn`` [cnn]
                  ``inputs``           input sets, each trained and evaluated
                                       [["data-driven", "hybrid"]]
                  ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]
@@ -70,10 +70,12 @@ table            key                  meaning [default]
                  ``device``           ``cpu``, ``cuda`` or ``auto`` [cpu: the same numbers on
                                       every machine]
                  every other field    of :class:`prognostics.train_config.TrainConfig`, with
-                                      its default there: ``window`` [50 CNN / 1 FNN],
-                                      ``stride`` [1], ``max_rul`` [no cap], ``batch_size``
-                                      [1024], ``lr`` [0.001], ``patience`` [5],
-                                      ``val_fraction`` [0.1], ``validation`` [flights],
+                                      its default there: ``window`` [50 CNN / 30 DCNN / 1
+                                      FNN], ``stride`` [1], ``max_rul`` [no cap],
+                                      ``batch_size`` [by data size], ``lr`` [0.001],
+                                      ``patience`` [by data size], ``schedule`` [plateau],
+                                      ``normalise`` [auto], ``drop_constant`` [true],
+                                      ``val_fraction`` [0.1], ``validation`` [auto],
                                       ``val_units`` [none], ``alpha`` (miscoverage of the
                                       conformal interval) [0.1]
 ===============  ===================  =========================================================

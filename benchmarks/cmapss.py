@@ -1,0 +1,229 @@
+"""NASA C-MAPSS, cross-validated on the training units: data-driven against hybrid inputs,
+beside the published models and the floors.
+
+    python benchmarks/cmapss.py --data-dir ../shared/data/cmapss [--work out/cmapss]
+        [--subsets FD001,FD002,FD003] [--models dcnn] [--folds 5] [--seeds 0,1,2]
+
+For every ``train_FD00x.txt`` in ``--data-dir`` (FD001-FD004, whichever are there):
+
+1. ``hyprog data import-cmapss`` and ``hyprog calibrate`` (UKF, the default parameters) into
+   ``--work`` (reused when already there);
+2. ``--folds`` folds of whole units (:func:`prognostics.cross_validation.unit_folds`, fold seed
+   0); per fold and training seed, one network per input set trained on the other folds' units
+   (validation on 10 % of them, whole units, drawn by the seed), the held-out units truncated
+   at a seeded random cycle where the true RUL is uniform on [0, 125]
+   (:func:`~prognostics.cross_validation.truncate_units`, seed = the fold seed) and scored
+   once, at that cycle, predictions capped like the targets;
+3. the floors on the same truncated units: the constant predictor (the mean capped RUL of the
+   training rows) and the physics-only baseline (:mod:`prognostics.baseline`: the trend of the
+   health index of θ̂, no network).
+
+Inputs: ``data-driven`` is ``w + cmapss`` (the operating settings and NASA's 21 sensors;
+constant ones are dropped by the training), ``hybrid`` adds ``xs_hat + xv_hat + theta_hat``
+(the model's estimates of the measured and virtual sensors and the calibrated health
+parameters). Each run is one line of ``--work/runs.jsonl`` (resumed); the table goes to stdout
+and, with ``--results``, to ``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``.
+
+Every figure here is a cross-validation figure on **training** units, not a test-set figure;
+the published figures beside them are test-set figures on NASA's test files (same
+last-cycle protocol, different units). If the folder holds ``test_FD00x.txt`` and
+``RUL_FD00x.txt`` the chosen configuration is evaluated on them once, at the end (``--test``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run_cache import append_run, read_runs  # noqa: E402
+
+#: Published last-cycle RMSE on NASA's test files (same protocol: targets capped at 125 or
+#: 130, one prediction per test unit at its last cycle).
+PUBLISHED = {
+    "Babu 2016 CNN": {"FD001": 18.45, "FD002": 30.29, "FD003": 19.82, "FD004": 29.16},
+    "Zheng 2017 LSTM": {"FD001": 16.14, "FD002": 24.49, "FD003": 16.18, "FD004": 28.17},
+    "Li 2018 DCNN": {"FD001": 12.61, "FD002": 22.36, "FD003": 12.64, "FD004": 23.31},
+}
+INPUTS = {"data-driven": "w+cmapss", "hybrid": "w+cmapss+xs_hat+xv_hat+theta_hat"}
+MAX_RUL = 125.0
+MULTI_CONDITION = {"FD002", "FD004"}
+
+
+def hyprog(*args: str) -> None:
+    subprocess.run([sys.executable, "-m", "cli.main", *args, "--quiet"], check=True,
+                   stderr=subprocess.DEVNULL)
+
+
+def prepare_subset(data_dir: Path, work: Path, subset: str) -> Path:
+    """Import and calibrate ``subset`` into ``work`` (once); the feature table's path."""
+    raw, feat = work / subset.lower(), work / f"{subset.lower()}-features"
+    if not raw.exists():
+        hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--out",
+               str(raw), "--overwrite")
+    if not feat.exists():  # (a calibration cut short resumes: run it again by hand)
+        t0 = time.perf_counter()
+        hyprog("calibrate", str(raw), "--out", str(feat))
+        print(f"{subset}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return feat
+
+
+def run_key(body: dict) -> str:
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def train_and_score(df, meta, cfg, fold, held) -> dict:
+    from prognostics.cross_validation import last_cycle_scores
+    from prognostics.ensemble import fit
+
+    t0 = time.perf_counter()
+    model = fit(df, meta, cfg)
+    seconds = time.perf_counter() - t0
+    pred = model.predict(held)
+    scores = last_cycle_scores(pred, cfg.max_rul)
+    m = model.members[0]
+    return {"rmse": scores["rmse"], "score": scores["score"], "seconds": seconds,
+            "best_epoch": m.best_epoch, "epochs_run": len(m.history),
+            "batch_size": model.config.batch_size, "patience": model.config.patience,
+            "columns": len(model.columns),
+            "deltas": {str(u): round(v["delta"], 3) for u, v in scores["units"].items()}}
+
+
+def floors(df, fold, held, hi_fn) -> dict:
+    from prognostics.baseline import baseline_predictions
+    from prognostics.cross_validation import last_cycle_scores
+
+    train = df[df["unit"].isin(fold.train)]
+    const = float(np.minimum(train["RUL"].to_numpy(float), MAX_RUL).mean())
+    last = held.groupby("unit").tail(1)
+    y = last["RUL"].to_numpy(float)
+    out = {"constant": float(np.sqrt(np.mean((y - const) ** 2)))}
+    if hi_fn is not None:
+        pred = baseline_predictions(held, hi_fn, MAX_RUL)
+        out["physics"] = last_cycle_scores(pred, MAX_RUL)["rmse"]
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data-dir", type=Path, required=True)
+    ap.add_argument("--work", type=Path, default=Path("out/cmapss"))
+    ap.add_argument("--subsets", default="FD001,FD002,FD003,FD004")
+    ap.add_argument("--models", default="dcnn")
+    ap.add_argument("--inputs", default="data-driven,hybrid")
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--fold-seed", type=int, default=0)
+    ap.add_argument("--set", action="append", default=[],
+                    help="TrainConfig field=value for every run (a setting under study)")
+    ap.add_argument("--results", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    from engine_model.datasets import read_dataset
+    from prognostics.cross_validation import truncate_units, unit_folds
+    from prognostics.train_config import TrainConfig
+
+    args.work.mkdir(parents=True, exist_ok=True)
+    cache = args.work / "runs.jsonl"
+    done = {r["key"]: r for r in read_runs(cache)}
+    overrides = {}
+    for item in args.set:
+        k, v = item.split("=", 1)
+        overrides[k] = json.loads(v) if v[:1] in "0123456789-[{tfn" else v
+    subsets = [s for s in args.subsets.split(",")
+               if (args.data_dir / f"train_{s}.txt").exists()]
+    rows = []
+    for subset in subsets:
+        feat = prepare_subset(args.data_dir, args.work, subset)
+        df, meta = read_dataset(feat)
+        units = sorted(df["unit"].unique().tolist())
+        normalise = "condition" if subset in MULTI_CONDITION else "minmax"
+        hi_fn = None
+        for k, fold in enumerate(unit_folds(units, args.folds, args.fold_seed)):
+            for model in args.models.split(","):
+                base = TrainConfig(model=model, max_rul=MAX_RUL, normalise=normalise,
+                                   units=fold.train, test_units=(), device="cpu")
+                base = replace(base, **overrides)
+                held = truncate_units(df, fold.held_out, seed=args.fold_seed,
+                                      min_cycles=int(base.resolved().window), max_rul=MAX_RUL)
+                fkey = run_key({"floors": 1, "subset": subset, "fold": k, "folds": args.folds,
+                                "fold_seed": args.fold_seed})
+                if fkey not in done:
+                    if hi_fn is None:
+                        from prognostics.baseline import engine_health_index
+                        hi_fn = engine_health_index()
+                    rec = {"key": fkey, "kind": "floors", "subset": subset, "fold": k,
+                           **floors(df, fold, held, hi_fn)}
+                    append_run(cache, rec)
+                    done[fkey] = rec
+                for name in args.inputs.split(","):
+                    for seed in [int(s) for s in args.seeds.split(",")]:
+                        cfg = replace(base, inputs=INPUTS[name], seed=seed)
+                        body = {"subset": subset, "fold": k, "folds": args.folds,
+                                "fold_seed": args.fold_seed, "config": cfg.to_dict()}
+                        key = run_key(body)
+                        if key not in done:
+                            rec = {"key": key, "kind": "run", "subset": subset, "fold": k,
+                                   "model": model, "inputs": name, "seed": seed,
+                                   "settings": overrides,
+                                   **train_and_score(df, meta, cfg, fold, held)}
+                            append_run(cache, rec)
+                            done[key] = rec
+                            print(f"{subset} fold {k} {model} {name} seed {seed}: RMSE "
+                                  f"{rec['rmse']:.2f} in {rec['seconds']:.0f} s "
+                                  f"(epoch {rec['best_epoch']}/{rec['epochs_run']})",
+                                  file=sys.stderr, flush=True)
+                        rows.append({**done[key], "settings": json.dumps(overrides)})
+                rows.append({**done[fkey], "model": "-", "settings": json.dumps(overrides)})
+    runs = pd.DataFrame(rows)
+    table = summarise(runs)
+    print(table)
+    if args.results is not None:
+        args.results.mkdir(parents=True, exist_ok=True)
+        (args.results / "cmapss.md").write_text(table + "\n")
+        cols = ["subset", "fold", "model", "inputs", "seed", "rmse", "score", "seconds",
+                "best_epoch", "epochs_run", "batch_size", "patience", "columns", "settings"]
+        nets = runs[runs["kind"] == "run"]
+        nets[cols].to_csv(args.results / "cmapss_runs.csv", index=False, float_format="%.4f")
+    return 0
+
+
+def summarise(runs: pd.DataFrame) -> str:
+    """Mean ± std of the last-cycle RMSE over folds x seeds per subset, model and inputs,
+    the floors, and the published figures."""
+    lines = ["| subset | predictor | RMSE (CV, mean ± std) | runs | s / run |",
+             "|---|---|---|---|---|"]
+    for subset, g in runs.groupby("subset", sort=True):
+        nets = g[g["kind"] == "run"]
+        for (model, inputs), h in nets.groupby(["model", "inputs"], sort=True):
+            lines.append(f"| {subset} | {model} {inputs} | {h['rmse'].mean():.2f} ± "
+                         f"{h['rmse'].std(ddof=1):.2f} | {len(h)} | {h['seconds'].mean():.0f} |")
+        for model, h in nets.groupby("model", sort=True):
+            pair = h.pivot_table(index=["fold", "seed"], columns="inputs", values="rmse")
+            if {"data-driven", "hybrid"} <= set(pair.columns):
+                rel = (pair["hybrid"] / pair["data-driven"] - 1.0).dropna() * 100
+                lines.append(f"| {subset} | {model}: hybrid vs data-driven, paired | "
+                             f"{rel.mean():+.1f} % ± {rel.std(ddof=1):.1f} % (hybrid better in "
+                             f"{int((rel < 0).sum())} of {len(rel)}) | {len(rel)} pairs | - |")
+        fl = g[g["kind"] == "floors"].drop_duplicates("key")
+        for name in ("constant", "physics"):
+            if name in fl.columns:
+                lines.append(f"| {subset} | {name} floor | {fl[name].mean():.2f} ± "
+                             f"{fl[name].std(ddof=1):.2f} | {len(fl)} folds | - |")
+        for paper, figs in PUBLISHED.items():
+            if subset in figs:
+                lines.append(f"| {subset} | {paper} (test set) | {figs[subset]:.2f} | - | - |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
