@@ -308,3 +308,51 @@ def test_import_then_calibrate_runs_on_a_noisy_sea_level_file(runner, tmp_path):
     assert r.exit_code == 0, r.output
     df, _ = read_dataset(feats)
     assert len(df) == 3 and df["HPT_eff_mod_hat"].notna().all()
+
+
+def test_import_calibrate_train_evaluate_run_unchanged_on_six_conditions(runner, tmp_path):
+    """The chain a new user runs on FD002: import (noisy settings of six conditions),
+    calibrate, train (Li et al.'s DCNN, per-condition standardisation chosen by itself,
+    constant channels dropped), evaluate held-out units at their last cycle."""
+    import pandas as pd
+
+    from data_samples import sample_path
+
+    means = pd.read_csv(sample_path("cmapss-fd002-operating-points.csv"))  # NASA's six points
+    noise = (0.008, -0.002, 0.0)
+    lines = []
+    for u in range(1, 5):
+        for c in range(1, 13):
+            k = (u + c) % 6
+            a, m, tra = OPERATING_CONDITIONS[k]
+            point = means.iloc[k]
+            sensors = [point[n] if n in point.index else s  # farB, htBleed, Nf_dmd: FD001's
+                       for n, s in zip(CMAPSS_SENSORS, FD001_SENSORS, strict=True)]
+            sensors = [v * (1 + 1e-4 * c * (n in ("T30", "T50", "Ps30")))  # wear
+                       for n, v in zip(CMAPSS_SENSORS, sensors, strict=True)]
+            lines.append(f"{u} {c} {a + noise[0] * (-1) ** c:.4f} {max(m + noise[1], 0.0):.4f} "
+                         f"{tra:.1f} " + " ".join(f"{v:.4f}" for v in sensors) + "  ")
+    train = write_lines(tmp_path / "train_FD002.txt", lines)
+    data, feats, model = tmp_path / "fd002", tmp_path / "features", tmp_path / "model"
+    r = runner.invoke(app, ["data", "import-cmapss", str(train), "--out", str(data)])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--quiet"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["train", str(feats), "--model", "dcnn", "--window", "5",
+                            "--inputs", "w+cmapss+theta_hat", "--units", "1,2,3",
+                            "--val-units", "3", "--max-rul", "125", "--epochs", "2",
+                            "--batch-size", "16", "--lr", "0.002", "--out", str(model),
+                            "--json"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    # per condition, every channel but the worn ones is constant in the written file
+    assert {"P2", "farB", "Nf_dmd", "T24"} <= set(rep["dropped_constant"])  # T2: a setting
+    assert "T30" not in rep["dropped_constant"]
+    assert rep["batch_size"] == 16 and rep["validation"] == "units"
+    from prognostics.checkpoint import load_model
+
+    assert load_model(model).config.normalise == "condition"
+    r = runner.invoke(app, ["evaluate", str(model), str(feats), "--units", "4", "--json"])
+    assert r.exit_code == 0, r.output
+    last = json.loads(r.stdout)["last"]["units"]["4"]
+    assert last["cycle"] == 12 and 0.0 <= last["RUL_pred"] <= 125.0
