@@ -84,8 +84,8 @@ from engine_model.validation import InputError
 
 from .base import estimator_class
 from .estimation_setup import CalibrationSetup
-from .series import prepare_unit
-from .unit_check import check_result, check_units
+from .series import early_samples, prepare_unit, unit_label
+from .unit_check import N_CHECK, check_result, check_units_many
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
 #: Most samples in one lockstep task (two DS02 units at 0.1 Hz, 80,000-130,000 samples each):
@@ -94,6 +94,8 @@ LOCKSTEP_METHODS = ("ukf", "ekf")
 #: not depend on the units it runs beside (the pipeline's jobs / Dask tests compare files byte
 #: for byte), so the cut changes no number.
 LOCKSTEP_MAX_ROWS = 250_000
+#: Samples checked against the model in one call before the work (:func:`check_inputs`).
+CHECK_BATCH_POINTS = 8192
 
 
 @dataclass
@@ -212,8 +214,8 @@ def run_task(task: dict) -> list[tuple]:
     results = est.estimate_many(frames, setup, task.get("source"))
     out = []
     for u, f, r in zip(task["units"], frames, results, strict=True):
-        series = prepare_unit(f, setup, task.get("source"))
-        r.diagnostics["warnings"] = check_result(r, series, setup)
+        # the estimator checked the frame (prepare_unit); the warnings need only its label
+        r.diagnostics["warnings"] = check_result(r, unit_label(f), setup)
         out.append((u, r.to_features(f), r))
     return out
 
@@ -437,15 +439,37 @@ def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
     """Read and check every unit once, before any output is touched (module docstring):
     :func:`series.prepare_unit` and, with ``check_data``, :func:`unit_check.check_units`
     (against the model with ``effects``). Returns unit -> its input record
-    (:func:`input_record`)."""
-    records, model = {}, None
+    (:func:`input_record`).
+
+    The model checks run in batches of units (:func:`unit_check.check_units_many`, one model
+    call for up to :data:`CHECK_BATCH_POINTS` samples; only each unit's first
+    :data:`unit_check.N_CHECK` samples are kept for it, so memory does not grow with the units'
+    length). The order of the errors is that of one unit at a time: a unit whose data cannot
+    be read is reported only after the units before it have been checked against the model."""
+    records: dict[int, dict] = {}
+    pending: list = []
+    points = 0
+
+    def flush():
+        nonlocal points
+        if pending:
+            check_units_many(worker_model(None, effects), pending, setup, source)
+        pending.clear()
+        points = 0
+
     for u, frame in _units_of(data, df_all, lengths):
-        series = prepare_unit(frame, setup, source)  # bad input: an error before any work
+        try:
+            series = prepare_unit(frame, setup, source)  # bad input: an error before any work
+        except InputError:
+            flush()
+            raise
         records[u] = input_record(frame, u, series.sensors)
         if check_data:
-            if model is None:
-                model = worker_model(None, effects)
-            check_units(model, series, setup, source)
+            pending.append(early_samples(series, N_CHECK))
+            points += len(pending[-1])
+            if points >= CHECK_BATCH_POINTS:
+                flush()
+    flush()
     return records
 
 

@@ -30,7 +30,7 @@ from engine_model.channels import W_NAMES
 from .base import Estimator
 from .estimation_setup import CalibrationSetup
 from .lockstep import LockstepFilter
-from .observability import check_observability
+from .observability import check_observability_many
 from .result import CalibrationResult, make_result
 from .series import UnitSeries, prepare_unit
 
@@ -132,7 +132,7 @@ class KalmanEstimator(Estimator):
         setup = setup or CalibrationSetup()
         t0 = time.perf_counter()
         series = [prepare_unit(df, setup, source) for df in units]
-        obs = [check_observability(self.model, s, setup) for s in series]
+        obs = check_observability_many(self.model, series, setup)  # batched over units
         t_obs = time.perf_counter() - t0
         groups: dict = {}
         for i, (s, o) in enumerate(zip(series, obs, strict=True)):

@@ -28,6 +28,7 @@ reported std of 0.009. Choose sensors that observe every parameter, or ``"raise"
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +54,12 @@ def scaled_sensitivities(model: SteadyStateModel, w, x, theta_full, sigma, senso
     at the converged unknowns ``x``, exact (implicit function theorem, CasADi)."""
     dth = model.sensitivities_at(np.asarray(x, float), np.asarray(w, float),
                                  np.asarray(theta_full, float), p).theta
+    return scale_sensitivities(model, dth, sigma, sensors, params_idx)
+
+
+def scale_sensitivities(model: SteadyStateModel, dth, sigma, sensors, params_idx) -> np.ndarray:
+    """``diag(1/sigma) dy/dtheta`` (N, m, k) from every output's ``dy/dtheta`` ``dth``
+    (N, n_out, 10): the rows of ``sensors``, the columns of ``params_idx``."""
     rows = [model.output_names.index(c) for c in sensors]
     J = dth[:, rows][:, :, params_idx]
     return J / sigma[:, :, None]
@@ -100,29 +107,119 @@ class Observability:
     data_std: dict  # parameter -> sqrt((I^-1)_jj) of the observable block
 
 
+#: Most sample points of one batched solve and sensitivity evaluation of
+#: :func:`check_observability_many` (units are added whole; at least one a batch): the
+#: sensitivities of a point take 36 x 14 doubles, so a batch holds about 40 MB whatever the
+#: fleet's size.
+OBSERVABILITY_BATCH_POINTS = 8192
+
+
+def sample_rows(n: int, setup: CalibrationSetup) -> np.ndarray:
+    """The rows of a unit of ``n`` samples the Fisher information is computed at: up to
+    ``setup.observability_samples`` spread evenly over the unit, first and last included."""
+    return np.unique(np.linspace(0, n - 1, min(n, setup.observability_samples)).astype(int))
+
+
 def check_observability(model: SteadyStateModel, series: UnitSeries, setup: CalibrationSetup,
                         x=None, p=None, apply_policy: bool = True) -> Observability:
     """Fisher information of ``setup.sensors`` about ``setup.params`` over the unit at the
-    prior mean, its rank, and which parameters are unobservable. With ``apply_policy``,
-    ``setup.unobservable == "raise"`` raises :class:`UnobservableError` and ``"exclude"``
-    warns (:class:`UnobservableWarning`)."""
-    n = len(series)
-    idx = np.unique(np.linspace(0, n - 1, min(n, setup.observability_samples)).astype(int))
-    w = series.w[idx]
-    th = np.tile(setup.theta_base(), (len(idx), 1))
-    pm = None if p is None else np.asarray(p)[idx] if np.ndim(p) == 2 else p
-    if x is None:
-        r = model.solve_series(w, th, pm)
-        ok = r.converged
-        if not ok.any():
-            raise InputError(f"{error_prefix(series.unit, None)}steady state did not converge at "
-                             "the prior mean anywhere; cannot check observability")
-        xs, w, th, sig = r.x[ok], w[ok], th[ok], series.sigma[idx][ok]
-        pm = pm[ok] if pm is not None and np.ndim(pm) == 2 else pm
-    else:
-        xs, sig = np.asarray(x)[idx], series.sigma[idx]
-    S = scaled_sensitivities(model, w, xs, th, sig, series.sensors, setup.param_index, pm)
-    info = fisher_information(S) * (n / len(xs))
+    prior mean, its rank, and which parameters are unobservable. ``x``: the unit's unknowns at
+    the prior mean when known (else solved along the series); ``p``: its effect parameters
+    ((n_p,) or (N, n_p)). With ``apply_policy``, ``setup.unobservable == "raise"`` raises
+    :class:`UnobservableError` and ``"exclude"`` warns (:class:`UnobservableWarning`)."""
+    return check_observability_many(model, [series], setup, [x], [p], apply_policy)[0]
+
+
+def check_observability_many(model: SteadyStateModel, series: Sequence[UnitSeries],
+                             setup: CalibrationSetup, xs: Sequence | None = None,
+                             ps: Sequence | None = None,
+                             apply_policy: bool = True) -> list[Observability]:
+    """:func:`check_observability` of every unit of ``series`` (``xs``, ``ps``: each unit's
+    ``x`` and ``p``, default None), in batches of whole units of up to
+    :data:`OBSERVABILITY_BATCH_POINTS` sample points.
+
+    Why batched: the work per unit is two small model calls (the solve along the series and
+    the sensitivities at a few hundred points), so for a fleet of many short units (C-MAPSS:
+    100 units of about 200 cycles) the calls' overhead cost as much as the evaluations, and a
+    large batch lets the sensitivities run on every core. The numbers are each unit's alone,
+    bit for bit: the solve treats every unit as its own series (``solve_series(...,
+    starts=...)``), the sensitivities are evaluated point by point, and each unit's Fisher
+    information is summed over its own points only. Units are assessed in order, so the first
+    unit that fails raises, after the warnings of the units before it, as one call each
+    would."""
+    n_units = len(series)
+    xs = [None] * n_units if xs is None else list(xs)
+    ps = [None] * n_units if ps is None else list(ps)
+    rows = [sample_rows(len(s), setup) for s in series]
+    out: list = []
+    batch: list[int] = []
+    points = 0
+    for i in range(n_units + 1):
+        if batch and (i == n_units or points + len(rows[i]) > OBSERVABILITY_BATCH_POINTS):
+            infos = _fisher_batch(model, [series[j] for j in batch], setup,
+                                  [rows[j] for j in batch], [xs[j] for j in batch],
+                                  [ps[j] for j in batch])
+            out += [_assess(info, series[j], setup, apply_policy)
+                    for j, info in zip(batch, infos, strict=True)]
+            batch, points = [], 0
+        if i < n_units:
+            batch.append(i)
+            points += len(rows[i])
+    return out
+
+
+def _fisher_batch(model, series, setup, rows, xs, ps) -> list:
+    """Each unit's Fisher information (k, k) scaled to its length, or an InputError to raise
+    when its steady state converged nowhere (raised in order by :func:`_assess`)."""
+    theta = setup.theta_base()
+    pms = [None if p is None else np.asarray(p)[idx] if np.ndim(p) == 2 else p
+           for p, idx in zip(ps, rows, strict=True)]
+    to_solve = [i for i, x in enumerate(xs) if x is None]
+    x_pts: list = [None] * len(series)
+    conv: list = [None] * len(series)
+    if to_solve:
+        lengths = np.array([len(rows[i]) for i in to_solve])
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        w = np.concatenate([series[i].w[rows[i]] for i in to_solve])
+        pm = (None if all(pms[i] is None for i in to_solve) else
+              np.concatenate([model.p_matrix(pms[i], len(rows[i])) for i in to_solve]))
+        r = model.solve_series(w, np.tile(theta, (len(w), 1)), pm, starts=starts)
+        for i, a, n in zip(to_solve, starts, lengths, strict=True):
+            x_pts[i], conv[i] = r.x[a:a + n], r.converged[a:a + n]
+    for i, x in enumerate(xs):
+        if x is not None:
+            x_pts[i] = np.asarray(x)[rows[i]]
+            conv[i] = np.ones(len(rows[i]), bool)
+    used = [i for i in range(len(series)) if conv[i].any()]
+    infos: list = [None] * len(series)
+    for i in range(len(series)):
+        if not conv[i].any():
+            infos[i] = InputError(f"{error_prefix(series[i].unit, None)}steady state did not "
+                                  "converge at the prior mean anywhere; cannot check "
+                                  "observability")
+    if not used:
+        return infos
+    w = np.concatenate([series[i].w[rows[i]][conv[i]] for i in used])
+    x = np.concatenate([x_pts[i][conv[i]] for i in used])
+    pm = (None if all(pms[i] is None for i in used) else
+          np.concatenate([model.p_matrix(pms[i] if np.ndim(pms[i]) != 2 else pms[i][conv[i]],
+                                         int(conv[i].sum())) for i in used]))
+    dth = model.sensitivities_at(x, w, np.tile(theta, (len(w), 1)), pm).theta
+    a = 0
+    for i in used:
+        m = int(conv[i].sum())
+        sig = series[i].sigma[rows[i]][conv[i]]
+        S = scale_sensitivities(model, dth[a:a + m], sig, series[i].sensors, setup.param_index)
+        infos[i] = fisher_information(S) * (len(series[i]) / m)
+        a += m
+    return infos
+
+
+def _assess(info, series: UnitSeries, setup: CalibrationSetup,
+            apply_policy: bool) -> Observability:
+    """The rank test of one unit's Fisher information and the policy (module docstring)."""
+    if isinstance(info, Exception):
+        raise info
     keep, dropped, rank = observability_split(info, setup.observability_rtol,
                                               setup.observability_max_std)
     sub = info[np.ix_(keep, keep)]
@@ -141,5 +238,5 @@ def check_observability(model: SteadyStateModel, series: UnitSeries, setup: Cali
         if setup.unobservable == "raise" or not obs.observable:
             raise UnobservableError(msg)
         warnings.warn(msg + "; held at the prior mean, reported as NaN",
-                      UnobservableWarning, stacklevel=2)
+                      UnobservableWarning, stacklevel=4)
     return obs

@@ -8,7 +8,7 @@ errors name the source file, unit, row and column), evaluates the sensor noise `
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -100,6 +100,18 @@ def _check_duplicate_times(df: pd.DataFrame, where: str) -> None:
                          f" duplicated time stamps ({int(dup.sum())} rows in all)")
 
 
+def unit_label(df: pd.DataFrame, source=None):
+    """The unit of ``df`` (the value of its ``unit`` column, as a Python scalar), or None
+    without that column or rows; rows of several units are an InputError."""
+    if "unit" not in df.columns or not len(df):
+        return None
+    u = pd.unique(df["unit"])
+    if len(u) > 1:
+        raise InputError(f"{error_prefix(None, source)}one unit at a time, got units "
+                         f"{', '.join(map(str, u[:5]))}")
+    return u[0].item() if hasattr(u[0], "item") else u[0]
+
+
 def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> UnitSeries:
     """Check and convert one unit's DataFrame. Errors name the source (file), unit, row and
     column: a missing column, a value that is not a number, a NaN or infinite value, an
@@ -107,13 +119,7 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
     positive one, two samples with the same cycle and time. Rows are the DataFrame's index
     labels (:func:`calibration.calibrate_fleet.calibrate_fleet` sets them to the 1-based rows of the
     user's file)."""
-    unit = None
-    if "unit" in df.columns and len(df):
-        u = pd.unique(df["unit"])
-        if len(u) > 1:
-            raise InputError(f"{error_prefix(None, source)}one unit at a time, got units "
-                             f"{', '.join(map(str, u[:5]))}")
-        unit = u[0].item() if hasattr(u[0], "item") else u[0]
+    unit = unit_label(df, source)
     where = error_prefix(unit, source)
     if len(df) == 0:
         raise InputError(f"{where}no rows")
@@ -178,3 +184,13 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
         dtau = dt.copy()
     return UnitSeries(w=w, y=y, sigma=sigma, dt_h=dt / 3600.0, dtau_h=dtau / 3600.0,
                       sensors=sensors, index=index, cycle=cycle, unit=unit)
+
+
+def early_samples(series: UnitSeries, n: int) -> UnitSeries:
+    """The unit's first ``n`` samples (all when shorter), as a series of their own."""
+    if len(series) <= n:
+        return series
+    cut = {k: getattr(series, k)[:n] for k in ("w", "y", "sigma", "dt_h", "dtau_h", "index")}
+    if series.cycle is not None:
+        cut["cycle"] = series.cycle[:n]
+    return replace(series, **cut)

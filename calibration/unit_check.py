@@ -36,7 +36,7 @@ not by the data; its reported std is then meaningless).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,9 +150,38 @@ def check_units(model, series: UnitSeries, setup: CalibrationSetup, source=None,
                 n_check: int = N_CHECK) -> list[ChannelCheck]:
     """The data of one unit against the model at theta = 0 (module docstring); raises
     InputError naming the unit, the channel(s) and the likely unit. Returns the checks."""
-    rows = _early(series, n_check)
-    theta = setup.full_theta(np.zeros((len(rows), setup.k)))
-    y_all, conv = model_outputs(model, series.w[rows], theta)
+    return check_units_many(model, [series], setup, source, n_check)[0]
+
+
+def check_units_many(model, series: Sequence[UnitSeries], setup: CalibrationSetup,
+                     source=None, n_check: int = N_CHECK) -> list[list[ChannelCheck]]:
+    """:func:`check_units` of every unit of ``series``, with one model solve for all of them:
+    the units' first ``n_check`` samples are stacked and solved as independent series
+    (``solve_series(..., starts=...)``: each unit warm-started along its own samples, none
+    carried across units), then compared unit by unit, in order, so the first unit that fails
+    raises, as one call each would. A fleet of short units (C-MAPSS) thus costs one model
+    call instead of one per unit. Returns each unit's checks."""
+    rows = [_early(s, n_check) for s in series]
+    if not series:
+        return []
+    lengths = np.array([len(r) for r in rows])
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    w = np.concatenate([s.w[r] for s, r in zip(series, rows, strict=True)])
+    theta = setup.full_theta(np.zeros((len(w), setup.k)))
+    sol = model.solve_series(w, theta, starts=starts)
+    y_all = np.asarray(model.outputs_at(sol.x, w, theta), float)
+    conv_all = np.asarray(sol.converged, bool)
+    out = []
+    for s, r, a in zip(series, rows, starts, strict=True):
+        sl = slice(a, a + len(r))
+        out.append(_compare_unit(model, s, r, setup, source, y_all[sl], conv_all[sl]))
+    return out
+
+
+def _compare_unit(model, series: UnitSeries, rows, setup: CalibrationSetup, source,
+                  y_all: np.ndarray, conv: np.ndarray) -> list[ChannelCheck]:
+    """One unit's channels against the model outputs ``y_all`` at its ``rows`` (converged
+    where ``conv``); raises InputError when a channel is wrong (module docstring)."""
     if not conv.any():
         return []  # nothing to compare; the estimator reports the non-converged samples
     cols = [OUTPUT_NAMES.index(c) for c in series.sensors]
@@ -185,11 +214,12 @@ def check_units(model, series: UnitSeries, setup: CalibrationSetup, source=None,
     raise InputError(where + "; ".join(parts))
 
 
-def check_result(result, series: UnitSeries, setup: CalibrationSetup) -> list[str]:
+def check_result(result, unit, setup: CalibrationSetup) -> list[str]:
     """Warnings after estimating (module docstring): channels the estimate cannot explain
-    and theta_hat ended at a bound."""
+    and theta_hat ended at a bound. ``unit``: the unit's label for the messages (None: no
+    label); the result holds everything else."""
     warns = []
-    where = f"unit {series.unit}: " if series.unit is not None else ""
+    where = f"unit {unit}: " if unit is not None else ""
     z = np.abs(result.residuals.to_numpy(float))
     for j, c in enumerate(result.residuals.columns):
         col = z[:, j][np.isfinite(z[:, j])]
@@ -208,4 +238,5 @@ def check_result(result, series: UnitSeries, setup: CalibrationSetup) -> list[st
     return warns
 
 
-__all__ = ["ChannelCheck", "CONVERSIONS", "check_result", "check_units", "compare_channels"]
+__all__ = ["ChannelCheck", "CONVERSIONS", "check_result", "check_units", "check_units_many",
+           "compare_channels"]

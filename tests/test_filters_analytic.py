@@ -69,7 +69,8 @@ class LinearModel:
     def solve(self, w, theta=None, p=None, x0=None, tol=1e-10, max_iter=30, check=True):
         return self._result(len(np.atleast_2d(w)))
 
-    def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
+    def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64,
+                     starts=None):
         return self._result(len(np.atleast_2d(w)))
 
     def outputs_at(self, x, w, theta=None, p=None):

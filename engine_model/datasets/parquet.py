@@ -70,11 +70,23 @@ def _unit_slices(units: np.ndarray) -> Iterator[tuple[int, slice]]:
 
 def _write_part(part: pd.DataFrame, file: Path, meta_json: bytes) -> None:
     """One unit's rows (without ``unit``) to one parquet file, metadata in the schema."""
-    table = pa.Table.from_pandas(part, preserve_index=False)
+    table = _arrow_table(part)
     # replace (not extend) the schema metadata: the pandas block holds library versions
     table = table.replace_schema_metadata({META_KEY.encode(): meta_json})
     file.parent.mkdir(parents=True, exist_ok=True)
     pq.write_table(table, file, compression=PARQUET_COMPRESSION)
+
+
+def _arrow_table(df: pd.DataFrame) -> pa.Table:
+    """``df`` as an Arrow table without its index. Columns of plain numpy numbers or booleans
+    (a feature table, a simulated fleet) are handed over directly: the same Arrow types as
+    ``Table.from_pandas`` gives them, at a fraction of its per-column cost (about half the
+    time of writing one short unit); anything else goes through ``from_pandas``."""
+    names = list(df.columns)
+    if all(isinstance(c, str) for c in names) and len(set(names)) == len(names) and all(
+            isinstance(t, np.dtype) and t.kind in "biuf" for t in df.dtypes):
+        return pa.Table.from_arrays([pa.array(df[c].to_numpy()) for c in names], names=names)
+    return pa.Table.from_pandas(df, preserve_index=False)
 
 
 def write_parquet(df: pd.DataFrame, path: str | os.PathLike,

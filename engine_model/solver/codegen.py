@@ -1,10 +1,14 @@
 """Compile CasADi functions to C shared libraries, cached on disk.
 
-The cache key is the SHA-256 of the generated C source plus the compiler command, so a
-changed model recompiles and an unchanged one is loaded by a second process without
-compiling. The cache directory is ``$HYPROG_CACHE`` or ``~/.cache/hyprog``. Files are written
-atomically (:mod:`engine_model.runtime.atomic`), so concurrent processes never load a
-half-written library.
+:func:`compile_functions`: the cache key is the SHA-256 of the generated C source plus the
+compiler command, so a changed model recompiles and an unchanged one is loaded by a second
+process without compiling. :func:`compile_keyed`: the caller gives a key computed without the
+functions (e.g. from the definitions they are derived from), so that functions that are slow
+to build (the engine's exact sensitivities: about 1 s of CasADi graph work, half of a model's
+start-up) are built only when their library is not in the cache. The cache directory is
+``$HYPROG_CACHE`` or ``~/.cache/hyprog``. Files are written atomically
+(:mod:`engine_model.runtime.atomic`), so concurrent processes never load a half-written
+library.
 """
 
 import hashlib
@@ -12,6 +16,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
@@ -51,29 +56,75 @@ def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2",
     ``-fopenmp``) are dropped if the compiler rejects them. The library path is returned
     under the key ``"__library__"`` for callers that load it with ctypes as well.
     """
+    cc = _compiler_or_fail()
+    with tempfile.TemporaryDirectory() as tmp:
+        src_path = _generate(name, functions, tmp)
+        src = src_path.read_bytes() + b"".join(Path(p).read_bytes() for p in extra_sources)
+        key = hashlib.sha256(src + _command(cc, opt, extra_flags, optional_flags)).hexdigest()[:16]
+        lib = cache_dir() / f"{name}_{key}.so"
+        if not lib.exists():
+            _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags, optional_flags)
+    return _load(lib, [f.name() for f in functions])
+
+
+def compile_keyed(name: str, key: str, names: list[str], build: Callable[[], list],
+                  opt: str = "-O2", extra_sources: tuple = (), extra_flags: tuple = (),
+                  optional_flags: tuple = ()) -> dict[str, ca.Function]:
+    """:func:`compile_functions` for functions named ``names`` whose definitions ``key``
+    identifies (module docstring): the library is looked up by ``key``, the extra sources and
+    the compiler command, and ``build()`` (returning the Functions) is called only when it is
+    not in the cache. The caller's key must change whenever the generated code would."""
+    cc = _compiler_or_fail()
+    material = key.encode() + b"".join(Path(p).read_bytes() for p in extra_sources)
+    full = hashlib.sha256(material + _command(cc, opt, extra_flags, optional_flags))
+    lib = cache_dir() / f"{name}_k{full.hexdigest()[:16]}.so"
+    if not lib.exists():
+        functions = build()
+        if [f.name() for f in functions] != list(names):
+            raise RuntimeError(f"{name}: built {[f.name() for f in functions]}, expected {names}")
+        with tempfile.TemporaryDirectory() as tmp:
+            src_path = _generate(name, functions, tmp)
+            _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags, optional_flags)
+    return _load(lib, names)
+
+
+def _compiler_or_fail() -> str:
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set CC); use compiled=False")
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = ca.CodeGenerator(f"{name}.c", {"with_header": False, "casadi_real": "double"})
-        for f in functions:
-            cg.add(f)
-        src_path = Path(cg.generate(tmp + os.sep))
-        src = src_path.read_bytes() + b"".join(Path(p).read_bytes() for p in extra_sources)
-        flags = tuple(extra_flags) + tuple(optional_flags)
-        key = hashlib.sha256(src + " ".join((cc, opt) + CFLAGS + flags).encode()
-                             ).hexdigest()[:16]
-        lib = cache_dir() / f"{name}_{key}.so"
-        if not lib.exists():
-            tmp_lib = Path(tmp) / "out.so"
-            sources = [str(src_path), *map(str, extra_sources)]
-            err = _build(cc, opt, sources, flags, tmp_lib)
-            if err is not None and optional_flags:
-                err = _build(cc, opt, sources, tuple(extra_flags), tmp_lib)
-            if err is not None:
-                raise RuntimeError(f"compiling {name} failed: {err}")
-            with atomic_output(lib, OWNED_FILE) as staged:
-                shutil.copyfile(tmp_lib, staged)
-    out = {f.name(): ca.external(f.name(), str(lib)) for f in functions}
+    return cc
+
+
+def _command(cc: str, opt: str, extra_flags: tuple, optional_flags: tuple) -> bytes:
+    """The compiler command, as part of a cache key."""
+    return " ".join((cc, opt) + CFLAGS + tuple(extra_flags) + tuple(optional_flags)).encode()
+
+
+def _generate(name: str, functions: list[ca.Function], tmp: str) -> Path:
+    """C source of ``functions`` in the folder ``tmp``."""
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False, "casadi_real": "double"})
+    for f in functions:
+        cg.add(f)
+    return Path(cg.generate(tmp + os.sep))
+
+
+def _compile(cc: str, name: str, src_path: Path, lib: Path, opt: str, extra_sources: tuple,
+             extra_flags: tuple, optional_flags: tuple) -> None:
+    """Compile ``src_path`` and the extra sources into the cached library ``lib``
+    (written atomically); ``optional_flags`` are dropped if the compiler rejects them."""
+    tmp_lib = src_path.parent / "out.so"
+    sources = [str(src_path), *map(str, extra_sources)]
+    err = _build(cc, opt, sources, tuple(extra_flags) + tuple(optional_flags), tmp_lib)
+    if err is not None and optional_flags:
+        err = _build(cc, opt, sources, tuple(extra_flags), tmp_lib)
+    if err is not None:
+        raise RuntimeError(f"compiling {name} failed: {err}")
+    with atomic_output(lib, OWNED_FILE) as staged:
+        shutil.copyfile(tmp_lib, staged)
+
+
+def _load(lib: Path, names: list[str]) -> dict[str, ca.Function]:
+    """The functions ``names`` of the library ``lib``, and its path under ``"__library__"``."""
+    out = {n: ca.external(n, str(lib)) for n in names}
     out["__library__"] = str(lib)
     return out

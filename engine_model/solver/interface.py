@@ -77,8 +77,10 @@ class SteadyStateModel(Protocol):
         ...
 
     def solve_series(self, w, theta=None, p=None, tol: float = 1e-10, max_iter: int = 30,
-                     chunk: int = 64) -> SolveResult:
-        """The steady state along a time series, warm-started sample to sample."""
+                     chunk: int = 64, starts=None) -> SolveResult:
+        """The steady state along a time series, warm-started sample to sample; ``starts``:
+        the first rows of several independent series stacked in ``w``, each solved as by a
+        call of its own (default: one series)."""
         ...
 
     def outputs_at(self, x, w, theta=None, p=None) -> np.ndarray:

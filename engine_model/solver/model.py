@@ -31,6 +31,7 @@ and mapped over the batch (:mod:`batch_eval`). :class:`EngineModel` satisfies
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,7 +55,7 @@ from engine_model.units import T_STD_R, k_to_r
 from engine_model.validation import InputError, check_columns, check_theta, check_w
 
 from .batch_eval import BatchEvaluator
-from .codegen import cache_dir, compile_functions
+from .codegen import cache_dir, compile_keyed
 from .guess_table import GuessTable
 from .interface import Sensitivities
 from .newton_driver import CompiledNewton, JacobianStore, SolveResult, newton_chord_numpy
@@ -82,6 +83,22 @@ class ResidualSystem:
     residual: ca.Function
     outputs: ca.Function
     guess: object  # callable (w (N,4)) -> x0 (N,7)
+
+
+class _LazyFunctions(dict):
+    """Functions by name; a missing one among the derived functions (``resjac``, ``sens``,
+    ``dxdth``) is taken from ``derive()`` (which builds them once) on first use."""
+
+    def __init__(self, derive, **functions):
+        super().__init__(functions)
+        self._derive = derive
+
+    def __missing__(self, key):
+        derived = self._derive()
+        if key not in derived:
+            raise KeyError(key)
+        self[key] = derived[key]
+        return self[key]
 
 
 class EngineModel:
@@ -125,6 +142,13 @@ class EngineModel:
 
     # ------------------------------------------------------------------ construction
     def _build(self):
+        """The residual system and its outputs as CasADi Functions, and the compiled code.
+
+        The derived functions (the Newton Jacobian, the exact sensitivities, dx*/dtheta) are
+        built only when needed (:meth:`_derived`): building the sensitivities' graph takes
+        about 1 s, half of a model's start-up, and a compiled model whose libraries are in the
+        cache never needs them. The libraries are looked up by a key of what they are derived
+        from (:meth:`_library_key`) instead of the hash of their generated C."""
         x = ca.SX.sym("x", N_UNKNOWNS)
         w = ca.SX.sym("w", N_W)
         th = ca.SX.sym("theta", N_THETA)
@@ -134,14 +158,56 @@ class EngineModel:
         out = imperial_outputs(st, hook)
         y = ca.vertcat(*[out[k] for k in OUTPUT_NAMES])
         self.stations_expr = st
+        # common subexpressions (the gas-property polynomials of one temperature, used by
+        # several stations) are evaluated once in the generated code
+        f_res = ca.Function("hyprog_residual", [x, w, th, p], [res], {"cse": True})
+        f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y], {"cse": True})
+        self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
+        self._derived_functions = None
+        self._symbolic = _LazyFunctions(self._derived, residual=f_res, outputs=f_out)
+        self._residual_serialized = f_res.serialize()
+        if self.compiled:
+            name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
+            key = self._library_key(f_out)
+            sym = self._symbolic
+            hot = compile_keyed(
+                name + "_hot", key, ["hyprog_residual", "hyprog_resjac"],
+                lambda: [sym["residual"], sym["resjac"]], opt="-O3",
+                extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
+                extra_flags=("-DRES_FN=hyprog_residual", "-DRESJAC_FN=hyprog_resjac"),
+                optional_flags=("-fopenmp",))
+            self._newton_c = CompiledNewton(hot["__library__"])
+            cold = compile_keyed(name + "_cold", key, ["hyprog_outputs", "hyprog_sensitivities"],
+                                 lambda: [sym["outputs"], sym["sens"]], opt="-O1")
+            fns = _LazyFunctions(self._derived, residual=hot["hyprog_residual"],
+                                 resjac=hot["hyprog_resjac"], outputs=cold["hyprog_outputs"],
+                                 sens=cold["hyprog_sensitivities"])
+        else:
+            fns = self._symbolic
+            self._newton_c = None
+        self._eval = BatchEvaluator(fns, self.n_threads)
+
+    def _library_key(self, f_out: ca.Function) -> str:
+        """What the compiled code is generated from: the residual and output Functions
+        (serialised: the physics and the effects), the CasADi version, and the source of this
+        module (how the derived functions are built) and of the code generator."""
+        from . import codegen
+
+        parts = [self._residual_serialized, f_out.serialize(), ca.__version__,
+                 Path(__file__).read_text(), Path(codegen.__file__).read_text()]
+        return hashlib.sha256("\0".join(parts).encode()).hexdigest()
+
+    def _derived(self) -> dict[str, ca.Function]:
+        """The functions derived from the residual system (built on first use): the Newton
+        Jacobian ``resjac``, the exact sensitivities ``sens`` (implicit function theorem) and
+        ``dxdth`` (dx*/dtheta, for tabulating starting guesses)."""
+        if self._derived_functions is not None:
+            return self._derived_functions
+        x, w, th, p, res, y = (self._sym[k] for k in ("x", "w", "theta", "p", "res", "y"))
         # the Newton Jacobian by reverse mode (one adjoint sweep per residual): 17 % fewer
         # instructions than CasADi's default forward mode here, the same numbers
         J = ca.densify(ca.jacobian(res, x, {"helper_options": {"ad_weight": 1.0}}))
-        # common subexpressions (the gas-property polynomials of one temperature, used by
-        # several stations) are evaluated once in the generated code
         cse = {"cse": True}
-        f_res = ca.Function("hyprog_residual", [x, w, th, p], [res], cse)
-        f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y], cse)
         f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
         # exact sensitivities by the implicit function theorem (module docstring)
         n_th, n_w = th.numel(), w.numel()
@@ -156,24 +222,8 @@ class EngineModel:
         f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out, cse)
         # dx*/dtheta, used only to tabulate starting guesses
         f_dxdth = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, :n_th]])
-        self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
-        self._symbolic = dict(residual=f_res, outputs=f_out, resjac=f_resjac, sens=f_sens,
-                              dxdth=f_dxdth)
-        if self.compiled:
-            name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
-            hot = compile_functions(
-                name + "_hot", [f_res, f_resjac], opt="-O3",
-                extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
-                extra_flags=(f"-DRES_FN={f_res.name()}", f"-DRESJAC_FN={f_resjac.name()}"),
-                optional_flags=("-fopenmp",))
-            self._newton_c = CompiledNewton(hot["__library__"])
-            cold = compile_functions(name + "_cold", [f_out, f_sens], opt="-O1")
-            fns = dict(residual=hot[f_res.name()], resjac=hot[f_resjac.name()],
-                       outputs=cold[f_out.name()], sens=cold[f_sens.name()], dxdth=f_dxdth)
-        else:
-            fns = dict(self._symbolic)
-            self._newton_c = None
-        self._eval = BatchEvaluator(fns, self.n_threads)
+        self._derived_functions = dict(resjac=f_resjac, sens=f_sens, dxdth=f_dxdth)
+        return self._derived_functions
 
     def _load_or_build_table(self) -> GuessTable:
         """The starting-guess table, cached on disk next to the compiled code."""
@@ -183,7 +233,7 @@ class EngineModel:
             # once) instead of tabulating every combination of effects.
             return EngineModel(self.design, compiled=self.compiled,
                                n_threads=self.n_threads)._guess
-        key = GuessTable.cache_key(self._symbolic["residual"].serialize())
+        key = GuessTable.cache_key(self._residual_serialized)
         return GuessTable.load_or_build(cache_dir() / f"table_{key}.npz", self._build_table,
                                         self.design.T40_des, self.design.nf_demand_pct,
                                         self.design.spec.throttle.alt_flight_weight)
@@ -341,7 +391,8 @@ class EngineModel:
         off = res.converged & ~self.valid_on_maps(res.x)
         res.converged[off] = False
 
-    def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64):
+    def solve_series(self, w, theta=None, p=None, tol=1e-10, max_iter=30, chunk=64,
+                     starts=None):
         """Solve a time series with warm starts, vectorised over the whole series.
 
         Every ``chunk``-th sample is an anchor, solved from the tabulated guess. Every other
@@ -350,6 +401,12 @@ class EngineModel:
         (mostly the nonlinear effect of theta and of the effects' parameters, which change
         slowly along a series) is carried forward. Samples that still fail are retried from
         the previous converged sample, then as :meth:`solve` retries.
+
+        ``starts`` (S,), the first rows of several independent series stacked in ``w`` (the
+        first 0; default one series): each is solved exactly as by a call of its own (its
+        anchors count from its first row, nothing is carried across a series boundary, the
+        last retry is one :meth:`solve` per series), but all share the batched Newton calls,
+        so many short series (a fleet's units) cost one call instead of one each.
         """
         w = np.atleast_2d(np.asarray(w, float))
         n = len(w)
@@ -358,15 +415,21 @@ class EngineModel:
         check_theta(th)
         pm = self.p_matrix(p, n)
         chunk = max(1, int(chunk))
+        starts = np.zeros(1, int) if starts is None else np.asarray(starts, int)
+        if starts.size == 0 or starts[0] != 0 or np.any(np.diff(starts) <= 0) or starts[-1] >= n:
+            raise InputError(f"solve_series: starts must rise from 0 below {n}, got {starts}")
+        series = np.searchsorted(starts, np.arange(n), side="right") - 1  # series of each row
+        is_anchor = (np.arange(n) - starts[series]) % chunk == 0
+        anchors = np.flatnonzero(is_anchor)
         guess = self.initial_guess(w, th)
-        anchors = np.arange(0, n, chunk)
         ra = self.solve_from(w[anchors], th[anchors], guess[anchors], pm[anchors], tol,
                              max_iter, retry=False)
         offset = np.where(ra.converged[:, None], ra.x - guess[anchors], 0.0)
-        # anchors that failed pass on the offset of the last one that converged
+        # anchors that failed pass on the offset of the last one of their series that converged
         ok_idx = np.maximum.accumulate(np.where(ra.converged, np.arange(len(anchors)), -1))
-        offset = np.where((ok_idx >= 0)[:, None], offset[np.maximum(ok_idx, 0)], 0.0)
-        x0 = guess + np.repeat(offset, chunk, axis=0)[:n]
+        first_anchor = np.searchsorted(anchors, starts)[series[anchors]]
+        offset = np.where((ok_idx >= first_anchor)[:, None], offset[np.maximum(ok_idx, 0)], 0.0)
+        x0 = guess + offset[np.cumsum(is_anchor) - 1]
         x0[anchors] = ra.x
         out = self.solve_from(w, th, x0, pm, tol, max_iter, retry=False)
         out.iterations[anchors] += np.where(ra.converged, ra.iterations, 0)
@@ -375,15 +438,17 @@ class EngineModel:
             good = np.flatnonzero(out.converged)
             prev = np.searchsorted(good, bad) - 1
             has = prev >= 0
+            has[has] = series[good[prev[has]]] == series[bad[has]]
             if has.any():
                 src = good[prev[has]]
                 b = bad[has]
                 x1 = guess[b] + (out.x[src] - guess[src])
                 out.put(b, self.solve_from(w[b], th[b], x1, pm[b], tol, max_iter, retry=False))
             bad = np.flatnonzero(~out.converged)
-            if bad.size:
-                out.put(bad, self.solve(w[bad], th[bad], pm[bad], tol=tol, max_iter=max_iter,
-                                        check=False))
+            for s in np.unique(series[bad]):  # continuation is capped per call: one per series
+                b = bad[series[bad] == s]
+                out.put(b, self.solve(w[b], th[b], pm[b], tol=tol, max_iter=max_iter,
+                                      check=False))
         return out
 
     # ------------------------------------------------------------------ at given unknowns

@@ -1,0 +1,187 @@
+"""Work batched over units gives each unit the numbers it gets alone, bit for bit.
+
+``hyprog calibrate`` on a fleet of many short units (C-MAPSS: 100 units of about 200 cycles)
+batches what used to be one model call per unit: the checks of the data against the model
+(:func:`calibration.unit_check.check_units_many`), the observability check
+(:func:`calibration.observability.check_observability_many`), both on
+``EngineModel.solve_series(..., starts=...)``; the model's batched evaluations go through
+CasADi's buffer interface (:mod:`engine_model.solver.batch_eval`); the compiled libraries are
+found without building the sensitivities (:func:`engine_model.solver.codegen.compile_keyed`).
+Each test compares the batched result with the one-unit-at-a-time one exactly (``==``, not a
+tolerance), and errors come in the order one unit at a time gives them.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from calibration import CalibrationSetup
+from calibration.calibrate_fleet import calibrate_fleet, features_of
+from calibration.observability import check_observability, check_observability_many
+from calibration.series import early_samples, prepare_unit
+from calibration.unit_check import check_units, check_units_many
+from engine_model import InputError, datasets
+from tests.conftest import REPO
+
+TINY = REPO / "data_samples" / "tiny"
+SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
+
+
+@pytest.fixture(scope="module")
+def units():
+    """Units 1-3 of the tiny fleet (their first flights: lengths that are and are not
+    multiples of solve_series' anchor spacing), as DataFrames."""
+    df, meta = datasets.read_dataset(TINY, units=[1, 2, 3])
+    df = df[df["cycle"] <= 2]
+    return [g.reset_index(drop=True) for _, g in df.groupby("unit")], meta
+
+
+def _same(a, b):
+    assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+
+
+def test_solve_series_of_stacked_series_equals_one_call_each(model, units):
+    frames, _ = units
+    ws = [f[["alt", "Mach", "TRA", "T2"]].to_numpy(float)[:n]
+          for f, n in zip(frames, (130, 64, 7), strict=True)]
+    th = np.zeros((sum(map(len, ws)), 10))
+    th[:, 0] = -0.01
+    starts = np.cumsum([0] + [len(w) for w in ws[:-1]])
+    both = model.solve_series(np.concatenate(ws), th, starts=starts)
+    for w, a in zip(ws, starts, strict=True):
+        alone = model.solve_series(w, th[: len(w)])
+        sl = slice(a, a + len(w))
+        _same(both.x[sl], alone.x)
+        _same(both.converged[sl], alone.converged)
+        _same(both.iterations[sl], alone.iterations)
+    with pytest.raises(InputError, match="starts"):
+        model.solve_series(ws[0], th[: len(ws[0])], starts=[1])
+
+
+def test_observability_of_many_units_equals_one_unit_at_a_time(model, units):
+    frames, meta = units
+    for setup in (SETUP.for_dataset(meta),
+                  CalibrationSetup(sensors=("P2", "P15"), drift_std_per_sqrt_h=0.01)):
+        series = [prepare_unit(f, setup) for f in frames]
+        with warnings.catch_warnings(record=True) as w_many:
+            warnings.simplefilter("always")
+            many = check_observability_many(model, series, setup)
+        with warnings.catch_warnings(record=True) as w_one:
+            warnings.simplefilter("always")
+            one = [check_observability(model, s, setup) for s in series]
+        assert [str(w.message) for w in w_many] == [str(w.message) for w in w_one]
+        for a, b in zip(many, one, strict=True):
+            _same(a.fisher, b.fisher)
+            assert (a.observable, a.unobservable, a.rank, a.data_std) == (
+                b.observable, b.unobservable, b.rank, b.data_std)
+    assert w_one  # the second setup leaves a parameter unobservable: warned per unit
+
+
+def test_observability_batches_are_bounded_and_change_no_number(model, units, monkeypatch):
+    import calibration.observability as obs
+
+    frames, meta = units
+    setup = SETUP.for_dataset(meta)
+    series = [prepare_unit(f, setup) for f in frames]
+    whole = check_observability_many(model, series, setup)
+    monkeypatch.setattr(obs, "OBSERVABILITY_BATCH_POINTS", 1)  # one unit a batch
+    for a, b in zip(check_observability_many(model, series, setup), whole, strict=True):
+        _same(a.fisher, b.fisher)
+
+
+def test_batched_evaluation_equals_casadi_call(model):
+    """The buffer interface returns what calling the mapped Function and converting its DMs
+    gives, padding and sparse outputs (the sensitivities' structural zeros) included."""
+    rng = np.random.default_rng(3)
+    n = 13
+    w = np.column_stack([rng.uniform(0, 30000, n), rng.uniform(0.2, 0.8, n),
+                         rng.uniform(70, 90, n), rng.uniform(450, 500, n)])
+    th = rng.normal(0, 0.01, (n, 10))
+    x = model.solve(w, th).x
+    cols = model._columns(x, w, th, None)
+    for key in ("outputs", "sens", "resjac"):
+        f = model._eval.functions[key].map(n, "serial")
+        outs = f(*cols)
+        outs = outs if isinstance(outs, (list, tuple)) else [outs]
+        for got, ref in zip(model._eval(key, *cols), outs, strict=True):
+            _same(got, np.asarray(ref))
+    assert not model._eval.functions["sens"].sparsity_out(0).is_dense()
+
+
+def _kelvin(frame: pd.DataFrame) -> pd.DataFrame:
+    out = frame.copy()
+    for c in ("T24", "T30", "T50"):
+        out[c] = out[c] / 1.8
+    return out
+
+
+def test_unit_checks_of_many_units_are_one_unit_at_a_time(model, units):
+    frames, meta = units
+    setup = SETUP.for_dataset(meta)
+    series = [prepare_unit(f, setup) for f in frames]
+    many = check_units_many(model, [early_samples(s, 50) for s in series], setup)
+    assert [[c.channel for c in checks] for checks in many] == [
+        [c.channel for c in check_units(model, s, setup, n_check=50)] for s in series]
+    bad = [series[0], prepare_unit(_kelvin(frames[1]), setup),
+           prepare_unit(_kelvin(frames[2]), setup)]
+    with pytest.raises(InputError, match=r"unit 2: columns T24, T30, T50 look like K"):
+        check_units_many(model, bad, setup)
+
+
+def test_a_fleet_reports_the_first_bad_unit_whatever_the_batching(model, units, tmp_path):
+    """Unit 2 in K, unit 3 with a NaN: the model check of unit 2 is reported, as one unit at
+    a time did, although unit 3 is read before the batch of checks runs."""
+    frames, meta = units
+    f3 = frames[2].copy()
+    f3.loc[3, "T30"] = np.nan
+    df = pd.concat([frames[0], _kelvin(frames[1]), f3], ignore_index=True)
+    with pytest.raises(InputError, match="unit 2: columns T24, T30, T50 look like K"):
+        calibrate_fleet(df, "ukf", SETUP, out=tmp_path / "f")
+    assert not (tmp_path / "f").exists() or not datasets.written_units(tmp_path / "f")
+
+
+def test_fleet_features_equal_each_unit_calibrated_alone(model, units):
+    """The feature table of a fleet run (checks and observability batched over its units,
+    the filter in lockstep) equals each unit's run alone, every column bit for bit."""
+    frames, meta = units
+    df = pd.concat(frames, ignore_index=True)
+    fleet = features_of(calibrate_fleet(df, "ukf", SETUP))
+    for f in frames:
+        u = int(f["unit"].iloc[0])
+        alone = features_of(calibrate_fleet(f, "ukf", SETUP))
+        mine = fleet[fleet["unit"] == u].reset_index(drop=True)
+        pd.testing.assert_frame_equal(mine, alone, check_exact=True)
+
+
+def test_a_cached_model_is_loaded_without_building_its_sensitivities(model):
+    from engine_model.solver.model import EngineModel
+
+    again = EngineModel()  # libraries and table in the cache (the fixture built them)
+    assert again._derived_functions is None
+    _same(again.outputs_at(np.zeros((1, 8)) + 1, np.array([[0, 0, 100, 518.67]])),
+          model.outputs_at(np.zeros((1, 8)) + 1, np.array([[0, 0, 100, 518.67]])))
+
+
+def test_keyed_compile_builds_only_on_a_miss(tmp_path, monkeypatch):
+    import casadi as ca
+
+    from engine_model.solver.codegen import compile_keyed
+
+    monkeypatch.setenv("HYPROG_CACHE", str(tmp_path))
+    calls = []
+
+    def build():
+        calls.append(1)
+        x = ca.SX.sym("x")
+        return [ca.Function("keyed_square", [x], [x * x])]
+
+    for _ in range(2):
+        fns = compile_keyed("hyprog_keyed_test", "k1", ["keyed_square"], build, opt="-O1")
+        assert float(fns["keyed_square"](3.0)) == 9.0
+    assert len(calls) == 1
+    compile_keyed("hyprog_keyed_test", "k2", ["keyed_square"], build, opt="-O1")
+    assert len(calls) == 2  # another key: built and compiled again
