@@ -88,8 +88,7 @@ def train(
 
     Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
 
-    C-MAPSS: hyprog train fd002-features --model dcnn --inputs w+cmapss+theta_hat --max-rul 125
-    --out models/fd002
+    C-MAPSS: hyprog train fd002-features --model dcnn --max-rul 125 --out models/fd002
     """
     from engine_model.datasets import read_dataset
     from engine_model.runtime import output_lock
