@@ -85,7 +85,7 @@ from engine_model.validation import InputError
 from .base import estimator_class
 from .estimation_setup import CalibrationSetup
 from .series import early_samples, prepare_unit, unit_label
-from .unit_check import N_CHECK, check_result, check_units_many
+from .unit_check import N_CHECK, bound_hits, check_result, check_units_many
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
 #: Most samples in one lockstep task (two DS02 units at 0.1 Hz, 80,000-130,000 samples each):
@@ -216,6 +216,7 @@ def run_task(task: dict) -> list[tuple]:
     for u, f, r in zip(task["units"], frames, results, strict=True):
         # the estimator checked the frame (prepare_unit); the warnings need only its label
         r.diagnostics["warnings"] = check_result(r, unit_label(f), setup)
+        r.diagnostics["at_bound"] = bound_hits(r, setup)
         out.append((u, r.to_features(f), r))
     return out
 
@@ -504,7 +505,8 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
                 run.units[u] = {"samples": len(feats), "seconds": float(d.get("seconds", 0)),
                                 "n_nonconverged": int(d.get("n_nonconverged", 0)),
                                 "unobservable": list(d.get("unobservable", [])),
-                                "sensors": records[u]["sensors"], "warnings": warns}
+                                "sensors": records[u]["sensors"], "warnings": warns,
+                                "at_bound": list(d.get("at_bound", []))}
                 done += 1
                 if progress is not None:
                     progress(done, len(todo))

@@ -227,16 +227,49 @@ def check_result(result, unit, setup: CalibrationSetup) -> list[str]:
             warns.append(f"{where}channel {c}: median residual {float(np.median(col)):.0f}"
                          f" sigma after estimating; the model cannot explain it (check its"
                          f" unit, {UNITS.get(c, '')})")
+    for hit in bound_hits(result, setup):
+        warns.append(f"{where}{hit['param']} is at its bound {hit['bound']:g} at"
+                     f" {hit['samples']} of {hit['of']} samples: {AT_BOUND}")
+    return warns
+
+
+AT_BOUND = "the box, not the data, sets it there (its std is not meaningful)"
+
+
+def bound_hits(result, setup: CalibrationSetup) -> list[dict]:
+    """Every estimated parameter that ended at a bound of the box: ``{"param": "<q>_hat",
+    "bound", "samples" (at it), "of" (the unit's samples)}``, in parameter order, lower
+    bound first."""
     lo, hi = setup.bounds
+    hits = []
     for name in result.theta_hat.columns:
         v = result.theta_hat[name].to_numpy(float)
         for bound, at in ((lo, v <= lo + BOUND_TOL), (hi, v >= hi - BOUND_TOL)):
             if at.any():
-                warns.append(f"{where}{name} is at its bound {bound:g} at {int(at.sum())} of"
-                             f" {len(v)} samples: the box, not the data, sets it there (its"
-                             " std is not meaningful)")
-    return warns
+                hits.append({"param": name, "bound": float(bound), "samples": int(at.sum()),
+                             "of": len(v)})
+    return hits
 
 
-__all__ = ["ChannelCheck", "CONVERSIONS", "check_result", "check_units", "check_units_many",
-           "compare_channels"]
+def summarise_bound_hits(units: dict) -> list[str]:
+    """One line per parameter and bound over a fleet: ``units`` maps a unit to its record
+    with ``"at_bound"`` (:func:`bound_hits`) and ``"samples"``. What a reader of a 100-unit
+    fleet needs instead of a line per unit (the per-unit lines stay in the JSON report)."""
+    grouped: dict[tuple, list] = {}
+    for u, rec in units.items():
+        for h in rec.get("at_bound", []):
+            grouped.setdefault((h["param"], h["bound"]), []).append((u, h))
+    lines = []
+    for (param, bound), hits in grouped.items():
+        names = [str(u) for u, _ in hits]
+        shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+        k = sum(h["samples"] for _, h in hits)
+        n = sum(h["of"] for _, h in hits)
+        unit_word = "unit" if len(hits) == 1 else "units"
+        lines.append(f"{param} is at its bound {bound:g} in {len(hits)} of {len(units)} units"
+                     f" ({unit_word} {shown}; {k:,} of their {n:,} samples): {AT_BOUND}")
+    return lines
+
+
+__all__ = ["ChannelCheck", "CONVERSIONS", "bound_hits", "check_result", "check_units",
+           "check_units_many", "compare_channels", "summarise_bound_hits"]

@@ -123,6 +123,7 @@ def run(
     from calibration import UnobservableWarning
     from calibration.calibrate_fleet import calibrate_fleet
     from calibration.discrepancy.drift_mle import setup_with_drift_mle
+    from calibration.unit_check import AT_BOUND, summarise_bound_hits
     from engine_model.channels import XS_NAMES
 
     with user_errors(), warnings.catch_warnings(record=True) as caught:
@@ -147,7 +148,9 @@ def run(
     if as_json:
         echo_json(rep)
         return
-    for w in warned:
+    # a line per parameter and bound over the fleet, not one per unit (every unit's is in --json)
+    per_unit = {w for v in res.units.values() for w in v["warnings"] if w.endswith(AT_BOUND)}
+    for w in [w for w in warned if w not in per_unit] + summarise_bound_hits(res.units):
         warn(w)
     c = console()
     c.print(f"sensors ({len(res.sensors)}): {', '.join(res.sensors)}"

@@ -292,3 +292,23 @@ def test_the_client_reads_short_units_in_groups_bounded_by_rows(tmp_path):
     path = datasets.write_parquet(df, tmp_path / "fleet", {})
     assert unit_rows(path, [1, 2]) == {1: 3, 2: 5}
     assert unit_rows(tmp_path / "fleet.h5", [1]) is None
+
+
+def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
+    """A 100-unit C-MAPSS fleet printed a line per unit and parameter at a bound (hundreds of
+    lines); the command now prints one per parameter and bound, the JSON keeps every unit's."""
+    from calibration.unit_check import AT_BOUND, summarise_bound_hits
+
+    units = {u: {"samples": 200, "at_bound": [
+        {"param": "LPT_flow_mod_hat", "bound": 0.05, "samples": 10 * u, "of": 200}]}
+        for u in range(1, 8)}
+    units[8] = {"samples": 150, "at_bound": [
+        {"param": "HPT_eff_mod_hat", "bound": -0.15, "samples": 1, "of": 150}]}
+    units[9] = {"samples": 90, "at_bound": []}
+    lines = summarise_bound_hits(units)
+    assert lines == [
+        "LPT_flow_mod_hat is at its bound 0.05 in 7 of 9 units (units 1, 2, 3, 4, 5, ...; "
+        f"280 of their 1,400 samples): {AT_BOUND}",
+        f"HPT_eff_mod_hat is at its bound -0.15 in 1 of 9 units (unit 8; 1 of their 150 "
+        f"samples): {AT_BOUND}"]
+    assert summarise_bound_hits({1: {"samples": 5, "at_bound": []}}) == []
