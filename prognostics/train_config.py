@@ -26,7 +26,9 @@ the model stores the values used):
   column whose training rows all carry a condition (none is 0) and hold more than one;
   ``"minmax"`` (the paper's min-max scaling over the fleet) otherwise.
 - ``drop_constant=True``: input columns constant over the training rows (within every
-  condition, with ``normalise="condition"``) are dropped and recorded.
+  condition, with ``normalise="condition"``) are dropped and recorded, and so are the
+  operating settings when every training row flies one operating condition (they are then
+  measurement noise around it; :func:`prognostics.training.one_condition_settings`).
 
 The numbers (:data:`MIN_BATCHES` 16, :data:`MIN_STEPS` 5,000, :data:`PATIENCE_STEPS` 2,000)
 were set once, for C-MAPSS FD001 by cross-validation on its training units

@@ -13,7 +13,8 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
    flights or units, conformal units);
 2. the scaler (min-max, or per operating condition) fitted on the **training rows only**
    (:mod:`.scaling`); with ``drop_constant``, input columns constant over those rows are
-   dropped (:attr:`Prepared.dropped`);
+   dropped, and so are the operating settings when those rows fly a single operating
+   condition (:func:`one_condition_settings`) (:attr:`Prepared.dropped`);
 3. windows inside each unit-and-role segment (:mod:`.windows`), target ``min(RUL, max_rul)``
    at the window's last row (``max_rul`` None: no cap, the paper's setting); the size rules
    of :mod:`.train_config` fill in the batch size, epochs and patience from the number of
@@ -48,6 +49,7 @@ import pandas as pd
 import torch
 from torch import nn
 
+from engine_model.channels import W_NAMES
 from engine_model.validation import InputError
 
 from .features import TARGET, check_table, resolve_inputs, sort_table
@@ -152,9 +154,12 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     dropped: list[str] = []
     if cfg.drop_constant:
         dropped = [c for c, k in zip(columns, scaler.constant, strict=True) if k]
+        dropped += [c for c in one_condition_settings(frame, columns, roles == TRAIN)
+                    if c not in dropped]
         if len(dropped) == len(columns):
             raise InputError(f"{source}: every input column is constant over the training "
-                             f"rows ({', '.join(columns)})")
+                             f"rows, or a setting of their single operating condition "
+                             f"({', '.join(columns)})")
         columns = [c for c in columns if c not in set(dropped)]
         scaler = scaler.subset(columns)
     x = scaler.transform_frame(frame, source=source)
@@ -172,6 +177,22 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     cfg = cfg.sized(0 if train is None else len(train), one_per_cycle)
     keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
     return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test, dropped)
+
+
+def one_condition_settings(frame: pd.DataFrame, columns: list[str],
+                           rows: np.ndarray) -> list[str]:
+    """The operating settings among ``columns`` when every training row flies one and the
+    same operating condition (the table's ``condition`` column, as ``import-cmapss`` writes
+    it, one nonzero value): they are then that condition plus measurement noise (C-MAPSS
+    FD001: altitude about ±0.009 kft, Mach about ±0.0006 around sea-level static), inputs that
+    carry nothing but noise, and are dropped with the constant columns (the published FD001
+    / FD003 models use the sensors only). Otherwise none."""
+    if CONDITION not in frame.columns:
+        return []
+    cond = frame[CONDITION].to_numpy()[rows]
+    if cond.size == 0 or cond[0] == 0 or not np.all(cond == cond[0]):
+        return []
+    return [c for c in columns if c in W_NAMES]
 
 
 def predict_windows(net: nn.Module, windows: Windows, device: torch.device,

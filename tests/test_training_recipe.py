@@ -247,3 +247,18 @@ def test_predictions_of_a_capped_model_are_capped_like_its_targets(make_features
     p = fit(df, meta, cfg).predict(df, [5, 6])
     assert p["RUL_pred"].between(0.0, 5.0).all()
     assert (p["RUL_pred"] == 5.0).any()  # the raw outputs go beyond the cap on healthy cycles
+
+
+def test_settings_of_a_single_operating_condition_are_dropped_as_noise():
+    df = _conditions_table()
+    one = df[df["condition"] == 2].copy()  # altitude carries noise around 20,000 ft
+    meta = {"dev_units": [1, 2, 3, 4, 5], "test_units": [6]}
+    cfg = TrainConfig(model="fnn", inputs="alt,Mach,TRA,T30,Nc", epochs=1, device="cpu")
+    m = fit(one, meta, cfg)
+    assert set(m.info["dropped_constant"]) == {"alt", "Mach", "TRA"}
+    assert m.columns == ("T30", "Nc")
+    assert set(fit(df, meta, cfg).columns) >= {"alt", "Mach", "TRA"}  # three conditions
+    unlabelled = one.drop(columns="condition")  # no condition column: alt stays (not constant)
+    assert "alt" in fit(unlabelled, meta, cfg).columns
+    with pytest.raises(InputError, match="single operating condition"):
+        fit(one, meta, TrainConfig(**{**cfg.__dict__, "inputs": "alt,Mach"}))
