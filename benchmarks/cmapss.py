@@ -77,6 +77,49 @@ def prepare_subset(data_dir: Path, work: Path, subset: str) -> Path:
     return feat
 
 
+def test_files(data_dir: Path, subset: str) -> tuple[Path, Path] | None:
+    """NASA's ``test_FD00x.txt`` and ``RUL_FD00x.txt`` when the folder holds both."""
+    test, rul = data_dir / f"test_{subset}.txt", data_dir / f"RUL_{subset}.txt"
+    return (test, rul) if test.exists() and rul.exists() else None
+
+
+def evaluate_on_test_files(data_dir: Path, work: Path, subset: str, model: str,
+                           seeds: list[int], overrides: dict) -> list[dict]:
+    """The chosen configuration trained on every training unit and scored once on NASA's
+    test units at their last cycle (import with ``--test/--rul``: test unit ``u`` is unit
+    ``1000 + u``), per seed and for the seeds' ensemble; one record per input set."""
+    from engine_model.datasets import read_dataset
+    from prognostics.cross_validation import last_cycle_scores
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+
+    test, rul = test_files(data_dir, subset)
+    raw, feat = work / f"{subset.lower()}-test", work / f"{subset.lower()}-test-features"
+    if not raw.exists():
+        hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--test",
+               str(test), "--rul", str(rul), "--out", str(raw), "--overwrite")
+    if not feat.exists():
+        hyprog("calibrate", str(raw), "--out", str(feat))
+    df, meta = read_dataset(feat)
+    test_units = [int(u) for u in meta["test_units"]]
+    train_units = sorted(set(df["unit"].unique().tolist()) - set(test_units))
+    normalise = "condition" if subset in MULTI_CONDITION else "minmax"
+    out = []
+    for name, spec in INPUTS.items():
+        cfg = replace(TrainConfig(model=model, inputs=spec, max_rul=MAX_RUL, normalise=normalise,
+                                  units=tuple(train_units), test_units=tuple(test_units),
+                                  device="cpu"), **overrides)
+        m = fit(df, meta, cfg, seeds=seeds)
+        per_seed = []
+        for k in range(len(seeds)):
+            single = replace(m, members=[m.members[k]])
+            per_seed.append(last_cycle_scores(single.predict(df, test_units), MAX_RUL)["rmse"])
+        ens = last_cycle_scores(m.predict(df, test_units), MAX_RUL)["rmse"]
+        out.append({"subset": subset, "model": model, "inputs": name, "units": len(test_units),
+                    "rmse_per_seed": per_seed, "rmse_ensemble": ens})
+    return out
+
+
 def run_key(body: dict) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -128,6 +171,9 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=None)
     ap.add_argument("--report", action="store_true",
                     help="summarise the runs already in --work/runs.jsonl; train nothing")
+    ap.add_argument("--test", action="store_true",
+                    help="once the configuration is chosen: train on every training unit and "
+                    "score NASA's test files (test_FD00x.txt, RUL_FD00x.txt), when present")
     args = ap.parse_args(argv)
 
     from engine_model.datasets import read_dataset
@@ -193,6 +239,21 @@ def main(argv=None) -> int:
                 rows.append({**done[fkey], "model": "-", "settings": json.dumps(overrides)})
     runs = pd.DataFrame(rows)
     table = summarise(runs)
+    if args.test:
+        found = [s for s in subsets if test_files(args.data_dir, s) is not None]
+        lines = ["", "Evaluated once on NASA's test files, after the choice above "
+                 "(trained on every training unit):", "",
+                 "| subset | predictor | test units | RMSE per seed | RMSE, ensemble |",
+                 "|---|---|---|---|---|"]
+        for subset in found:
+            for model in args.models.split(","):
+                seeds = [int(x) for x in args.seeds.split(",")]
+                for r in evaluate_on_test_files(args.data_dir, args.work, subset, model,
+                                                seeds, overrides):
+                    lines.append(f"| {subset} | {model} {r['inputs']} | {r['units']} | "
+                                 + ", ".join(f"{v:.2f}" for v in r["rmse_per_seed"])
+                                 + f" | {r['rmse_ensemble']:.2f} |")
+        table += "\n".join(lines) if found else "\n\nNo test files in the folder."
     print(table)
     if args.results is not None:
         args.results.mkdir(parents=True, exist_ok=True)
