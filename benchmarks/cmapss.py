@@ -171,6 +171,9 @@ def main(argv=None) -> int:
     ap.add_argument("--results", type=Path, default=None)
     ap.add_argument("--report", action="store_true",
                     help="summarise the runs already in --work/runs.jsonl; train nothing")
+    ap.add_argument("--reverse", action="store_true",
+                    help="folds in reverse order: a second process on the same --work shares "
+                    "the work (each run is looked up in the cache just before it trains)")
     ap.add_argument("--test", action="store_true",
                     help="once the configuration is chosen: train on every training unit and "
                     "score NASA's test files (test_FD00x.txt, RUL_FD00x.txt), when present")
@@ -201,7 +204,8 @@ def main(argv=None) -> int:
         units = sorted(df["unit"].unique().tolist())
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
         hi_fn = None
-        for k, fold in enumerate(unit_folds(units, args.folds, args.fold_seed)):
+        folds = list(enumerate(unit_folds(units, args.folds, args.fold_seed)))
+        for k, fold in (reversed(folds) if args.reverse else folds):
             for model in args.models.split(","):
                 base = TrainConfig(model=model, max_rul=MAX_RUL, normalise=normalise,
                                    units=fold.train, test_units=(), device="cpu")
@@ -224,6 +228,8 @@ def main(argv=None) -> int:
                         body = {"subset": subset, "fold": k, "folds": args.folds,
                                 "fold_seed": args.fold_seed, "config": cfg.to_dict()}
                         key = run_key(body)
+                        if key not in done:  # another process may have done it since
+                            done.update({r["key"]: r for r in read_runs(cache)})
                         if key not in done:
                             rec = {"key": key, "kind": "run", "subset": subset, "fold": k,
                                    "model": model, "inputs": name, "seed": seed,
