@@ -268,6 +268,10 @@ def main(argv=None) -> int:
                 "best_epoch", "epochs_run", "batch_size", "patience", "columns", "settings"]
         nets = runs[runs["kind"] == "run"]
         nets[cols].to_csv(args.results / "cmapss_runs.csv", index=False, float_format="%.4f")
+        kept = args.results / "runs.jsonl.gz"  # the table's cache lines (gunzip to --work/
+        kept.unlink(missing_ok=True)            # runs.jsonl to resume from them)
+        for key in dict.fromkeys(runs["key"]):
+            append_run(kept, done[key])
     return 0
 
 
