@@ -124,7 +124,7 @@ def run_key(body: dict) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def train_and_score(df, meta, cfg, fold, held) -> dict:
+def train_and_score(df, meta, cfg, held) -> dict:
     from prognostics.cross_validation import last_cycle_scores
     from prognostics.ensemble import fit
 
@@ -234,7 +234,7 @@ def main(argv=None) -> int:
                             rec = {"key": key, "kind": "run", "subset": subset, "fold": k,
                                    "model": model, "inputs": name, "seed": seed,
                                    "settings": overrides,
-                                   **train_and_score(df, meta, cfg, fold, held)}
+                                   **train_and_score(df, meta, cfg, held)}
                             append_run(cache, rec)
                             done[key] = rec
                             print(f"{subset} fold {k} {model} {name} seed {seed}: RMSE "

@@ -18,11 +18,11 @@ prediction when a full window ends at it; a unit shorter than the window is left
 its first row and gets one prediction at its last sample.
 
 A model trained on capped targets ``min(RUL, max_rul)`` has its predictions **capped like
-the targets**: ``RUL_pred`` clipped to ``[0, max_rul]`` (the conformal interval is
-calibrated on, and placed around, the clipped prediction), the
-convention of the C-MAPSS literature (the network was never taught a RUL above the cap or
-below zero); ``RUL_std`` is the members' raw spread. Without a cap (the paper's setting) the
-ensemble mean is reported as it is.
+the targets**: ``RUL_pred`` clipped to ``[0, max_rul]``, the convention of the C-MAPSS
+literature (the network was never taught a RUL above the cap or below zero); the conformal
+interval is calibrated on, and placed around, the clipped prediction; ``RUL_std`` is the
+members' raw spread. Without a cap (the paper's setting) the ensemble mean is reported as it
+is.
 """
 
 from __future__ import annotations

@@ -103,18 +103,26 @@ class SameConv1d(nn.Conv1d):
         return y[:, :, 0, self.offset:self.offset + x.shape[-1]]
 
 
+def conv_stack(n_inputs: int, channels, kernel: int, activation) -> list[nn.Module]:
+    """'Same'-padded convolutions over time with ``channels`` outputs in turn, each followed by
+    ``activation()``: the convolutional part of the CNN and the DCNN."""
+    layers: list[nn.Module] = []
+    c_in = n_inputs
+    for c in channels:
+        layers += [SameConv1d(c_in, c, kernel), activation()]
+        c_in = c
+    return layers
+
+
 class CNN1D(nn.Module):
     """Three 1-D convolutions over time, dense 50, linear output (module docstring)."""
 
     def __init__(self, n_inputs: int, window: int, channels=CNN_CHANNELS,
                  kernel: int = CNN_KERNEL, dense: int = CNN_DENSE):
         super().__init__()
-        layers: list[nn.Module] = []
-        c_in = n_inputs
-        for c in channels:
-            layers += [SameConv1d(c_in, c, kernel), nn.ReLU()]
-            c_in = c
-        layers += [nn.Flatten(), nn.Linear(c_in * window, dense), nn.ReLU(), nn.Linear(dense, 1)]
+        layers = conv_stack(n_inputs, channels, kernel, nn.ReLU)
+        layers += [nn.Flatten(), nn.Linear(channels[-1] * window, dense), nn.ReLU(),
+                   nn.Linear(dense, 1)]
         self.net = nn.Sequential(*layers)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, n, L) -> (B,)
@@ -126,12 +134,8 @@ class DCNN(nn.Module):
 
     def __init__(self, n_inputs: int, window: int):
         super().__init__()
-        layers: list[nn.Module] = []
-        c_in = n_inputs
-        for c in DCNN_CHANNELS:
-            layers += [SameConv1d(c_in, c, DCNN_KERNEL), nn.Tanh()]
-            c_in = c
-        layers += [SameConv1d(c_in, 1, DCNN_LAST_KERNEL), nn.Tanh(), nn.Flatten(),
+        layers = conv_stack(n_inputs, DCNN_CHANNELS, DCNN_KERNEL, nn.Tanh)
+        layers += [SameConv1d(DCNN_CHANNELS[-1], 1, DCNN_LAST_KERNEL), nn.Tanh(), nn.Flatten(),
                    nn.Dropout(DCNN_DROPOUT), nn.Linear(window, DCNN_DENSE), nn.Tanh(),
                    nn.Linear(DCNN_DENSE, 1)]
         self.net = nn.Sequential(*layers)

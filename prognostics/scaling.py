@@ -190,9 +190,14 @@ class ConditionScaler:
         return cls(tuple(columns), tuple(int(k) for k in conds), mean, std, mm)
 
     @property
+    def _flat(self) -> np.ndarray:
+        """``(n_conditions, k)``: column j is constant within condition c."""
+        return _is_constant(self.mean - self.std, self.mean + self.std)
+
+    @property
     def constant(self) -> np.ndarray:
         """Columns constant within every condition (a setting: constant over the fleet)."""
-        out = np.all(_is_constant(self.mean - self.std, self.mean + self.std), axis=0)
+        out = np.all(self._flat, axis=0)
         for j, c in enumerate(self.columns):
             if c in self.settings.columns:
                 out[j] = bool(self.settings.constant[self.settings.columns.index(c)])
@@ -217,7 +222,7 @@ class ConditionScaler:
                              "the model was trained on (conditions "
                              f"{', '.join(map(str, self.conditions))})")
         scale_s, offset_s = self.settings._affine()
-        flat = _is_constant(self.mean - self.std, self.mean + self.std)
+        flat = self._flat
         out = np.empty((len(df), len(self.columns)), dtype=dtype)
         for j, c in enumerate(self.columns):
             v = df[c].to_numpy(np.float64)

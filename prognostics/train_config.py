@@ -8,8 +8,8 @@ learning rate 1e-3, early-stopping patience 5, validation on 10 % of the flights
 (:data:`PAPER_RECIPE`, what the paper experiment trains with). Those settings were made for
 about 5 M samples (some 5,000 optimiser steps an epoch); a C-MAPSS subset has 20 k rows and one
 sample per cycle, where 30 epochs at batch 1024 are some 500 steps. The defaults therefore
-follow the size of the data (:func:`size_rules`, applied once the training windows are known;
-the model stores the values used):
+follow the size of the data (:meth:`TrainConfig.sized`, applied once the training windows
+are known; the model stores the values used):
 
 - ``validation="auto"``: whole held-out units (``"units"``) when the table has one sample per
   cycle, where a validation "flight" would be one row; the paper's flights otherwise.
@@ -28,12 +28,13 @@ the model stores the values used):
 - ``drop_constant=True``: input columns constant over the training rows (within every
   condition, with ``normalise="condition"``) are dropped and recorded, and so are the
   operating settings when every training row flies one operating condition (they are then
-  measurement noise around it; :func:`prognostics.training.one_condition_settings`).
+  measurement noise around it; :func:`prognostics.training.training_conditions`).
 
-The numbers (:data:`MIN_BATCHES` 16, :data:`MIN_STEPS` 5,000, :data:`PATIENCE_STEPS` 2,000)
-were set once, for C-MAPSS FD001 by cross-validation on its training units
-(``benchmarks/cmapss.py``), not per data set; at the paper's 5 M samples every rule gives the
-paper's value back.
+The numbers were set once, for C-MAPSS FD001, not per data set: :data:`MIN_BATCHES` 16 gives
+Li et al.'s batch of 512 there, chosen over 128 on one cross-validation fold
+(``benchmarks/cmapss.py``, data-driven DCNN, RMSE 15.4 against 16.9); :data:`MIN_STEPS` 5,000
+keeps Li et al.'s 250 epochs; :data:`PATIENCE_STEPS` 2,000 (72 epochs there) is a judgement,
+not a fit. At the paper's 5 M samples every rule gives the paper's value back.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ class TrainConfig:
 
     def resolved(self) -> TrainConfig:
         """The window filled in and values checked; the size rules (epochs, batch size,
-        patience, validation) stay None / "auto" until :func:`size_rules`."""
+        patience, validation) stay None / "auto" until :meth:`sized`."""
         if self.model not in MODEL_KINDS:
             raise InputError(f"unknown model {self.model!r}; one of {', '.join(MODEL_KINDS)}")
         for name, allowed in (("schedule", SCHEDULES), ("normalise", NORMALISATIONS),
@@ -106,6 +107,12 @@ class TrainConfig:
             raise InputError(f"learning rate must be positive, got {c.lr}")
         return c
 
+    def validation_for(self, one_per_cycle: bool) -> str:
+        """``validation`` with ``"auto"`` decided (module docstring)."""
+        if self.validation != "auto":
+            return self.validation
+        return "units" if one_per_cycle else "flights"
+
     def sized(self, n_windows: int, one_per_cycle: bool) -> TrainConfig:
         """The size rules of the module docstring for ``n_windows`` training windows (an
         estimate before the validation split is fine: the rules are coarse) and a table with
@@ -121,10 +128,8 @@ class TrainConfig:
             max(DEFAULT_EPOCHS[c.model], -(-MIN_STEPS // steps))
         patience = c.patience if c.patience is not None else \
             max(PAPER_PATIENCE, -(-PATIENCE_STEPS // steps))
-        validation = c.validation if c.validation != "auto" else \
-            ("units" if one_per_cycle else "flights")
         return replace(c, batch_size=batch, epochs=epochs, patience=patience,
-                       validation=validation)
+                       validation=c.validation_for(one_per_cycle))
 
     def to_dict(self) -> dict:
         d = asdict(self)

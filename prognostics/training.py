@@ -14,7 +14,7 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
 2. the scaler (min-max, or per operating condition) fitted on the **training rows only**
    (:mod:`.scaling`); with ``drop_constant``, input columns constant over those rows are
    dropped, and so are the operating settings when those rows fly a single operating
-   condition (:func:`one_condition_settings`) (:attr:`Prepared.dropped`);
+   condition (:func:`training_conditions`) (:attr:`Prepared.dropped`);
 3. windows inside each unit-and-role segment (:mod:`.windows`), target ``min(RUL, max_rul)``
    at the window's last row (``max_rul`` None: no cap, the paper's setting); the size rules
    of :mod:`.train_config` fill in the batch size, epochs and patience from the number of
@@ -140,22 +140,20 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     unit = frame["unit"].to_numpy()
     cycle = frame["cycle"].to_numpy()
     one_per_cycle = bool(np.all((unit[1:] != unit[:-1]) | (cycle[1:] != cycle[:-1])))
-    cfg = replace(cfg, validation=cfg.sized(len(frame), one_per_cycle).validation)
+    cfg = replace(cfg, validation=cfg.validation_for(one_per_cycle))
     roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,
                          val_fraction=cfg.val_fraction, validation=cfg.validation,
                          val_units=cfg.val_units, conformal_units=cfg.conformal_units,
                          source=source)
+    conditions = training_conditions(frame, roles == TRAIN)
     if cfg.normalise == "auto":
-        cond = frame[CONDITION].to_numpy()[roles == TRAIN] if CONDITION in frame.columns \
-            else np.zeros(0)
-        by_condition = cond.size > 0 and bool(np.all(cond != 0)) and len(np.unique(cond)) > 1
-        cfg = replace(cfg, normalise="condition" if by_condition else "minmax")
+        cfg = replace(cfg, normalise="condition" if len(conditions) > 1 else "minmax")
     scaler = fit_scaler(cfg.normalise, frame, columns, roles == TRAIN, source)
     dropped: list[str] = []
     if cfg.drop_constant:
         dropped = [c for c, k in zip(columns, scaler.constant, strict=True) if k]
-        dropped += [c for c in one_condition_settings(frame, columns, roles == TRAIN)
-                    if c not in dropped]
+        if len(conditions) == 1:  # the settings are noise around the one condition
+            dropped += [c for c in columns if c in W_NAMES and c not in dropped]
         if len(dropped) == len(columns):
             raise InputError(f"{source}: every input column is constant over the training "
                              f"rows, or a setting of their single operating condition "
@@ -179,20 +177,22 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test, dropped)
 
 
-def one_condition_settings(frame: pd.DataFrame, columns: list[str],
-                           rows: np.ndarray) -> list[str]:
-    """The operating settings among ``columns`` when every training row flies one and the
-    same operating condition (the table's ``condition`` column, as ``import-cmapss`` writes
-    it, one nonzero value): they are then that condition plus measurement noise (C-MAPSS
-    FD001: altitude about ±0.009 kft, Mach about ±0.0006 around sea-level static), inputs that
-    carry nothing but noise, and are dropped with the constant columns (the published FD001
-    / FD003 models use the sensors only). Otherwise none."""
+def training_conditions(frame: pd.DataFrame, rows: np.ndarray) -> tuple[int, ...]:
+    """The distinct operating conditions of the training ``rows`` when the table labels every
+    one of them (its ``condition`` column, as ``import-cmapss`` writes it, with no 0 = "none
+    matched"); ``()`` otherwise.
+
+    Several: ``normalise="auto"`` standardises per condition. Exactly one: the operating
+    settings are that condition plus measurement noise (C-MAPSS FD001: altitude about
+    ±0.009 kft, Mach about ±0.0006 around sea-level static), inputs that carry nothing but
+    noise, so ``drop_constant`` drops them with the constant columns (the published FD001 /
+    FD003 models use the sensors only)."""
     if CONDITION not in frame.columns:
-        return []
+        return ()
     cond = frame[CONDITION].to_numpy()[rows]
-    if cond.size == 0 or cond[0] == 0 or not np.all(cond == cond[0]):
-        return []
-    return [c for c in columns if c in W_NAMES]
+    if cond.size == 0 or np.any(cond == 0):
+        return ()
+    return tuple(int(k) for k in np.unique(cond))
 
 
 def predict_windows(net: nn.Module, windows: Windows, device: torch.device,
