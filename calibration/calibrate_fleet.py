@@ -373,13 +373,16 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
                     options: dict | None = None, units: Sequence[int] | None = None,
                     jobs: int = 1, scheduler=None, out=None, keep_results: bool = True,
                     progress: Callable[[int, int], None] | None = None,
-                    check_data: bool = True, effects: Sequence = ()) -> FleetRun:
+                    check_data: bool = True, effects: Sequence = (),
+                    model_source: dict | None = None) -> FleetRun:
     """Calibrate every unit of ``data`` (a dataset path, or a DataFrame with a ``unit``
     column) with ``method`` (module docstring). ``options`` go to the estimator's constructor;
     ``progress(done_units, total_units)`` is called as units finish. ``check_data`` compares
     every unit with the model before estimating (:func:`unit_check.check_units`).
     ``effects``: effects switched on in the model, held at their values (module
-    docstring)."""
+    docstring); ``model_source``: where they came from (an adapted model's
+    :meth:`~calibration.adaptation.AdaptedModel.provenance`), recorded in the metadata as
+    ``model_effects``."""
     setup = setup or CalibrationSetup()
     options = dict(options or {})
     estimator_class(method)  # unknown method: clear error before any work
@@ -412,6 +415,8 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
                   "hyprog_version": datasets.hyprog_version()}
     if specs:  # absent without effects: tables written before effects existed still resume
         calib_meta["effects"] = specs
+    if model_source:
+        calib_meta["model_effects"] = dict(model_source)
     run = FleetRun(method=method, setup=setup, options=options,
                    out=None if out is None else str(out), effects=specs)
     records = check_inputs(data, df_all, lengths, setup, source, check_data, specs)

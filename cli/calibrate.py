@@ -100,6 +100,9 @@ Mode = Annotated[str | None, typer.Option(
 Hessian = Annotated[str | None, typer.Option(
     "--hessian", help="mhe / map_cycle: gauss-newton or exact (default: gauss-newton).")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print a JSON report only.")]
+ModelEffects = Annotated[Path | None, typer.Option(
+    "--model-effects", help="Adapted model (hyprog adapt --out FILE): its effects are switched "
+    "on in the engine model and recorded in the output's metadata.")]
 
 
 @app.command("run")
@@ -111,8 +114,8 @@ def run(
     params: Params = None, sensors: Sensors = None, drift: Drift = None,
     noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
-    stride: Stride = None, mode: Mode = None, hessian: Hessian = None, as_json: AsJson = False,
-    quiet: Quiet = False,
+    stride: Stride = None, mode: Mode = None, hessian: Hessian = None,
+    model_effects: ModelEffects = None, as_json: AsJson = False, quiet: Quiet = False,
 ):
     """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std).
 
@@ -132,9 +135,15 @@ def run(
         opts = _options(method, window, stride, mode, hessian)
         unit_list = parse_units(units)
         setup = setup_with_drift_mle(drift, data, setup, unit_list)
+        adapted = None
+        if model_effects is not None:
+            from calibration.adaptation import load_adapted
+            adapted = load_adapted(model_effects)
         with progress_bar(f"calibrating ({method})", as_json or quiet) as update:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
-                                  keep_results=False, progress=update)
+                                  keep_results=False, progress=update,
+                                  effects=adapted.effects if adapted else (),
+                                  model_source=adapted.provenance() if adapted else None)
     warned = sorted({str(w.message) for w in caught
                      if issubclass(w.category, UnobservableWarning)}) + list(res.warnings)
     nonconverged = sum(v["n_nonconverged"] for v in res.units.values())

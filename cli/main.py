@@ -23,7 +23,18 @@ import sys
 import typer
 from typer.core import TyperGroup
 
-from cli import calibrate, data, effects, evaluate, experiment, model, predict, simulate, train
+from cli import (
+    adapt,
+    calibrate,
+    data,
+    effects,
+    evaluate,
+    experiment,
+    model,
+    predict,
+    simulate,
+    train,
+)
 from cli import discover as discover_cmd
 from cli import pipeline as pipeline_cmd
 from cli.common import (
@@ -110,6 +121,7 @@ app.add_typer(calibrate.app, name="calibrate")
 app.command("simulate")(simulate.simulate)
 app.command("effects")(effects.effects)
 app.command("discover")(discover_cmd.discover)
+app.command("adapt")(adapt.adapt)
 app.command("train")(train.train)
 app.command("evaluate")(evaluate.evaluate)
 app.command("predict")(predict.predict)

@@ -37,6 +37,13 @@ comma-separated list of columns, e.g. ``hybrid``, ``w+xs+xs_hat``, ``alt,Mach,TR
 resolves to nothing is an error (``hybrid`` on a raw table without ``_hat`` columns would
 silently be ``data-driven``); an explicit column that the table lacks is an error naming it.
 Columns are deduplicated in first-seen order; the resolved list is what a model records.
+
+Unobservable parameters. ``hyprog calibrate --params all`` asks for every health parameter;
+one the sensors cannot tell apart from the others is written as NaN (``CalibrationResult``).
+A ``<q>_hat`` column that is NaN in *every* row of the table is such a parameter: the groups
+``theta_hat`` and ``theta`` leave it out (:func:`unobservable_columns`). A column NaN in only
+some rows is not dropped: :func:`check_table` names its first NaN, since a network cannot read
+a parameter observable in one unit and not in another.
 """
 
 from __future__ import annotations
@@ -64,9 +71,19 @@ INPUT_SETS: dict[str, tuple[str, ...]] = {
 }
 
 
-def group_columns(group: str, columns: Sequence[str]) -> list[str]:
-    """The columns of ``group`` (module docstring) that ``columns`` has, in canonical order."""
-    have = set(columns)
+def unobservable_columns(df: pd.DataFrame) -> list[str]:
+    """The ``<q>_hat`` health-parameter columns of ``df`` that are NaN in every row (the
+    calibration found ``q`` unobservable in every unit; module docstring)."""
+    return [q + "_hat" for q in THETA_NAMES
+            if q + "_hat" in df.columns and len(df) and bool(df[q + "_hat"].isna().all())]
+
+
+def group_columns(group: str, columns: Sequence[str],
+                  unobservable: Sequence[str] = ()) -> list[str]:
+    """The columns of ``group`` (module docstring) that ``columns`` has, in canonical order;
+    the health parameters whose ``<q>_hat`` is in ``unobservable`` are left out of
+    ``theta_hat`` and ``theta``."""
+    have = set(columns) - set(unobservable)
     if group == "w":
         cand = list(W_NAMES)
     elif group == "xs":
@@ -89,8 +106,10 @@ def group_columns(group: str, columns: Sequence[str]) -> list[str]:
     return [c for c in cand if c in have]
 
 
-def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table") -> list[str]:
-    """Resolve an input specification (module docstring) against a table's ``columns``."""
+def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table",
+                   unobservable: Sequence[str] = ()) -> list[str]:
+    """Resolve an input specification (module docstring) against a table's ``columns``;
+    ``unobservable`` (:func:`unobservable_columns`) is left out of the health groups."""
     spec = spec.strip()
     if not spec:
         raise InputError("inputs: empty specification")
@@ -101,7 +120,7 @@ def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table") -> 
         if term in INPUT_SETS or term in GROUPS:
             groups = INPUT_SETS.get(term, (term,))
             for g in groups:
-                cols = group_columns(g, columns)
+                cols = group_columns(g, columns, unobservable)
                 if not cols:
                     hint = " (run hyprog calibrate first)" if g.endswith("_hat") else ""
                     raise InputError(f"{source}: inputs {term!r} need the {g} columns, and the "

@@ -52,7 +52,7 @@ from torch import nn
 from engine_model.channels import W_NAMES
 from engine_model.validation import InputError
 
-from .features import TARGET, check_table, resolve_inputs, sort_table
+from .features import TARGET, check_table, resolve_inputs, sort_table, unobservable_columns
 from .models import build_model, parameter_count
 from .scaling import CONDITION, Scaler, fit_scaler
 from .splits import (
@@ -133,7 +133,7 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         raise InputError(f"{source}: no {TARGET} column to train on")
     present = np.unique(df["unit"].to_numpy()).tolist()
     dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
-    columns = resolve_inputs(cfg.inputs, list(df.columns), source)
+    columns = resolve_inputs(cfg.inputs, list(df.columns), source, unobservable_columns(df))
     every_unit = set(present) <= set(dev)  # no copy of the table when it is all development
     frame = sort_table(df if every_unit else df[df["unit"].isin(dev)])
     check_table(frame, columns, source)

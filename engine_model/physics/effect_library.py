@@ -45,6 +45,12 @@ map_scaling        map adaptation of one component (option ``component``: fan, L
                    polynomial map tuning, Tsoutsanis et al., Applied Energy 135, 2014). The
                    constant term is left out: at the design speed the scaler is theta itself
                    (the health parameter), so the effect is the shape, not the level.
+design_scaling     the constant part of a component's map adaptation (option ``component``):
+                   efficiency and flow scalers added to its health modifiers. On one engine
+                   it is indistinguishable from theta; over a fleet it is the level every
+                   engine shares (a model-engine mismatch), while theta is each engine's own
+                   (:mod:`calibration.adaptation` fits the two apart). Not a candidate of the
+                   discrepancy loop, whose theta per cycle would absorb it entirely.
 sensor_bias        a sensor offset and gain on one channel: ``x <- x (1 + gain) + offset``.
 sensor_drift       a sensor whose gain drifts with use: ``x <- x (1 + rate cycle)``; the
                    flight ``cycle`` is a per-row context parameter.
@@ -72,6 +78,10 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
   and nothing moves; at cruise (TRA 80, dn < 0) a positive ``eff_1`` lowers the component's
   efficiency, so the burner runs hotter (``T48``, ``T50``, ``Wf`` up) for an HPC, HPT or
   LPT (the instance's ``moves`` and ``signature`` are per component).
+- design_scaling: a lower efficiency or flow of a component (both at -1 %) at both points:
+  for a compressor or turbine the burner must run hotter (``Wf``, ``T50`` up); a less
+  efficient fan raises less pressure at the held fan speed (``P15``, ``P30`` down); the
+  signs per component are the instance's ``signature``.
 - sensor_bias / sensor_drift: only the chosen channel moves; every other output is unchanged.
 """
 
@@ -252,6 +262,61 @@ class MapScaling(Effect):
         if hook == f"{self.component}_flow_mod":
             dn = ctx["n_corr"] - 1.0
             return value + p["flow_1"] * dn + p["flow_2"] * dn * dn
+        return value
+
+
+@register
+class DesignScaling(Effect):
+    """The constant part of a component's map adaptation (option ``component``)."""
+
+    name = "design_scaling"
+    options = ("component",)
+    description = ("Design-point map scaling of one component (option component): constant "
+                   "efficiency and flow scalers, the level that a fleet shares.")
+    params = (
+        Param("eff", "-", 0.0, "efficiency scaler (added to the efficiency modifier)", -0.01,
+              (-0.03, 0.03), valid=(-0.15, 0.05)),
+        Param("flow", "-", 0.0, "flow scaler (added to the flow modifier)", -0.01,
+              (-0.03, 0.03), valid=(-0.15, 0.05)),
+    )
+    moves = ("<component>",)  # per instance: MOVES[component]
+    signature = {"SLS": {}, "CRZ": {}}
+    # both scalers at their typical size (-1 %): the measured channels that move by more than
+    # 0.1 % at SLS or CRZ (tests/test_effects.py checks them) and the signs at both points
+    MOVES = {
+        "fan": ("Wf", "Nc", "T30", "T40", "T48", "T50", "P15", "P21", "P24", "Ps30", "P30",
+                "P40", "P50"),
+        "LPC": ("Wf", "Nc", "T24", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40"),
+        "HPC": ("Wf", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40"),
+        "HPT": ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40"),
+        "LPT": ("Wf", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50"),
+    }
+    SIGNS = {"fan": {"Wf": -1, "T50": -1, "P15": -1, "P30": -1},
+             "LPC": {"Wf": +1, "T50": +1, "P30": -1, "Nc": +1},
+             "HPC": {"Wf": +1, "T30": +1, "T50": +1, "P30": -1},
+             "HPT": {"Wf": +1, "T50": +1, "P30": +1, "Nc": -1},
+             "LPT": {"Wf": +1, "T50": +1, "P30": +1, "Nc": -1}}
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        comp = self.opts.get("component")
+        if comp is None:
+            raise EffectSpecError("effect design_scaling: option 'component' is required "
+                                  "(e.g. design_scaling:component=HPC,eff=-0.01)")
+        if comp not in COMPONENT_MODS:
+            raise EffectSpecError(f"effect design_scaling: unknown component {comp!r}; one "
+                                  f"of {', '.join(COMPONENT_MODS)}")
+        self.component = comp
+        self.name = f"design_scaling_{comp}"
+        self.moves = self.MOVES[comp]
+        signs = dict(self.SIGNS[comp])
+        self.signature = {"SLS": signs, "CRZ": signs}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == f"{self.component}_eff_mod":
+            return value + p["eff"]
+        if hook == f"{self.component}_flow_mod":
+            return value + p["flow"]
         return value
 
 

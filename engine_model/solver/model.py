@@ -167,7 +167,10 @@ class EngineModel:
         self._symbolic = _LazyFunctions(self._derived, residual=f_res, outputs=f_out)
         self._residual_serialized = f_res.serialize()
         if self.compiled:
-            name = "hyprog_engine" + (("_" + self.effects.key) if self.effects.key else "")
+            tag = self.effects.key
+            if len(tag) > 80:  # a file name has at most 255 bytes: a long variant is hashed
+                tag = "v" + hashlib.sha256(tag.encode()).hexdigest()[:16]
+            name = "hyprog_engine" + (("_" + tag) if tag else "")
             key = self._library_key(f_out)
             sym = self._symbolic
             hot = compile_keyed(

@@ -1,0 +1,118 @@
+"""``adapt``: the whole adaptation of the engine model to a fleet's measured data, and its
+record (:mod:`.artefact`). The steps are the package docstring's."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from engine_model.channels import THETA_NAMES
+from engine_model.datasets import hyprog_version
+from engine_model.datasets.fingerprint import rows_fingerprint
+
+from .data import DEFAULT_CHANNELS, fleet_data
+from .fleet_fit import FleetData, FleetFit, Shared
+from .groups import build_groups
+from .noise import EARLY_CYCLES
+from .selection import Selection, engines_out, mean_errors, select, shared_of
+
+
+@dataclass
+class Adaptation:
+    """The result: the selection, the data it used, the noise table, the held-out-engine
+    errors before and after, and :meth:`record` (the artefact's content)."""
+
+    selection: Selection
+    data: FleetData
+    noise: pd.DataFrame
+    groups: list
+    engines_out_before: float
+    engines_out_after: float
+    seconds: float
+    source: dict
+
+    def parameters(self) -> list[dict]:
+        """Every fitted parameter: candidate, parameter, value, posterior std, valid range,
+        and whether it sits on a bound of that range."""
+        sel = self.selection
+        std = sel.fit.std
+        out, k = [], 0
+        for c in self.groups:
+            if c.name not in sel.chosen:
+                continue
+            for j, q in enumerate(c.params):
+                v = float(sel.fit.phi[c.index[j]])
+                lo, hi = (float(x) for x in c.valid[j])
+                out.append({"candidate": c.name, "parameter": q, "value": v,
+                            "std": float(std[k]) if k < len(std) else float("nan"),
+                            "valid": [lo, hi],
+                            "at_bound": bool(np.isclose(v, lo) or np.isclose(v, hi))})
+                k += 1
+        return out
+
+    def effects(self) -> list[str]:
+        """The chosen candidates as effect specifications at the fitted values."""
+        sel = self.selection
+        return [c.spec(sel.fit.phi[c.index]) for c in self.groups if c.name in sel.chosen]
+
+    def theta_summary(self, fit: FleetFit) -> dict:
+        """Early-life health of the engines under ``fit``: mean and std across engines of
+        every parameter of ``delta``."""
+        return {q: {"mean": float(fit.delta[:, j].mean()), "std": float(fit.delta[:, j].std())}
+                for j, q in enumerate(THETA_NAMES)}
+
+    def record(self) -> dict:
+        sel = self.selection
+        return {
+            "effects": self.effects(),
+            "parameters": self.parameters(),
+            "channels": list(self.data.channels),
+            "noise": {str(k): {c: float(v) for c, v in row.items()}
+                      for k, row in self.noise.iterrows()},
+            "data": self.source,
+            "selection": {
+                "steps": [vars(s) for s in sel.steps],
+                "chosen": list(sel.chosen),
+                "chi2_in_sample": {"before": sel.base_fit.chi2_per_sample(),
+                                   "after": sel.fit.chi2_per_sample()},
+                "chi2_condition_out": {"before": sel.before.chi2_out,
+                                       "after": sel.after.chi2_out},
+                "chi2_engines_out": {"before": self.engines_out_before,
+                                     "after": self.engines_out_after},
+                "mean_error_pct_in_sample": {
+                    "before": mean_errors(self.data, sel.base_fit.prediction,
+                                          sel.base_fit.converged),
+                    "after": mean_errors(self.data, sel.fit.prediction, sel.fit.converged)},
+                "mean_error_pct_condition_out": {"before": sel.before.mean_error_pct,
+                                                 "after": sel.after.mean_error_pct},
+                "theta_early_life": {"before": self.theta_summary(sel.base_fit),
+                                     "after": self.theta_summary(sel.fit)},
+            },
+            "seconds": self.seconds,
+            "hyprog_version": hyprog_version(),
+        }
+
+
+def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
+          early_cycles: int = EARLY_CYCLES, units=None, model=None, log=None,
+          source: str = "data", engine_folds: int = 3, seed: int = 0) -> Adaptation:
+    """Adapt the engine model to the fleet in ``df`` (package docstring). ``candidates``:
+    registry names of :mod:`.groups` (default all); ``model``: a prebuilt
+    :class:`~calibration.discrepancy.candidates.CandidateModel` of the same groups (tests)."""
+    from calibration.discrepancy.candidates import CandidateModel
+
+    t0 = time.perf_counter()
+    data, noise = fleet_data(df, channels, early_cycles, units, source=source)
+    groups = build_groups(data.channels, candidates)
+    model = model or CandidateModel(groups)
+    sel = select(model, data, groups, log)
+    before = engines_out(model, data, Shared.none(), sel.base_fit, engine_folds, seed)
+    after = engines_out(model, data, shared_of(groups, sel.chosen), sel.fit, engine_folds,
+                        seed)
+    early = df[df["cycle"] <= early_cycles]
+    info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
+            "samples": len(data.y), "early_cycles": early_cycles}
+    return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)

@@ -1,0 +1,241 @@
+"""One fit of a whole fleet: parameters shared by every engine and each engine's own health,
+by bounded Gauss-Newton with exact Jacobians.
+
+Model (early life, engine ``u``, sample ``n``, channel ``j``; package docstring)::
+
+    y_nj = G_j(w_n, delta_u(n), phi) + eps_nj,    eps_nj ~ N(0, sigma_j,c(n)^2)
+    delta_u ~ N(0, diag(s_theta^2))        (manufacturing scatter of new engines)
+    phi_i ~ N(0, s_phi,i^2), phi_i in [lo_i, hi_i]   (a prior and the valid range)
+
+``phi`` (the free parameters of the candidate effects, :mod:`.groups`) is shared by the
+fleet; ``delta_u`` (every health parameter) is each engine's own. The zero-mean prior on
+``delta_u`` is what tells them apart: a fleet-wide offset of a component's efficiency costs the
+prior of every engine if it is put in ``delta``, and almost nothing if it is put in the
+shared ``design_scaling`` of that component.
+
+The negative log posterior (``e`` the whitened residual)::
+
+    L = 1/2 |e|^2 + 1/2 sum_u |delta_u / s_theta|^2 + 1/2 |phi / s_phi|^2
+
+is minimised by Gauss-Newton with a Levenberg damping (Nocedal & Wright 2006, sec. 10.3),
+steps projected onto the bounds (a shared parameter at a bound that the step pushes out is
+held there for that step). The normal equations are *bordered block-diagonal* (one small
+block per engine, a dense border for the shared parameters), solved by the Schur
+complement on the shared block (Triggs et al., "Bundle adjustment - a modern synthesis",
+2000, sec. 6.1), so the cost is linear in the
+number of engines. The Gauss-Newton matrix at the optimum, inverted, is the posterior
+covariance; the shared block of it (the inverse Schur complement) is the uncertainty of the
+adaptation, the health of every engine marginalised out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from engine_model.channels import THETA_NAMES
+from engine_model.validation import ENVELOPE
+
+#: Prior std of an engine's own health parameters when new (manufacturing scatter): 1 % on
+#: every component efficiency and flow, a judgement. It sets how a fleet-wide offset is split
+#: between the shared ``design_scaling`` and ``delta`` (with 85 engines the fleet mean of
+#: ``delta`` costs 85 times its prior); the spread of early-life theta_hat across the FD002
+#: engines is reported beside it (docs/adaptation.md).
+S_THETA = 0.01
+#: Bounds on ``delta``: the model's range of a health parameter.
+THETA_LO, THETA_HI = ENVELOPE.theta
+MAX_ITER = 40
+#: Stop when the relative decrease of L in a step is below this.
+REL_TOL = 1e-7
+
+
+@dataclass
+class FleetData:
+    """Samples of a fleet: ``w`` (N, 4), ``y`` (N, m) readings of ``channels``, ``sigma``
+    (N, m) their noise std, ``unit`` (N,) engine index 0..U-1 (rows grouped by engine, in
+    order), ``units`` the engine ids, ``condition`` (N,) operating-condition label, ``cycle``
+    (N,)."""
+
+    w: np.ndarray
+    y: np.ndarray
+    sigma: np.ndarray
+    unit: np.ndarray
+    units: tuple
+    condition: np.ndarray
+    cycle: np.ndarray
+    channels: tuple
+
+    def subset(self, rows) -> FleetData:
+        """The samples ``rows`` (a mask or indices); engines renumbered, order kept."""
+        rows = np.asarray(rows)
+        rows = np.flatnonzero(rows) if rows.dtype == bool else rows
+        ids, inv = np.unique(self.unit[rows], return_inverse=True)
+        return FleetData(self.w[rows], self.y[rows], self.sigma[rows], inv.astype(int),
+                         tuple(self.units[i] for i in ids), self.condition[rows],
+                         self.cycle[rows], self.channels)
+
+    @property
+    def n_units(self) -> int:
+        return len(self.units)
+
+
+@dataclass
+class Shared:
+    """The shared parameters to fit: ``free`` (indices into the candidate model's ``phi``),
+    their prior std ``prior`` and bounds ``lower`` / ``upper``."""
+
+    free: np.ndarray
+    prior: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @classmethod
+    def none(cls) -> Shared:
+        z = np.zeros(0)
+        return cls(np.zeros(0, int), z, z, z)
+
+
+@dataclass
+class FleetFit:
+    """The fit: ``phi`` (the candidate model's whole vector), ``delta`` (U, k) every engine's
+    health, ``cov`` the posterior covariance of ``phi[free]`` (every engine's health
+    marginalised out), ``residual`` (N, m) whitened, ``prediction`` (N, m), ``converged``
+    (N,), ``cost`` L, ``history`` L after every accepted step."""
+
+    phi: np.ndarray
+    delta: np.ndarray
+    cov: np.ndarray
+    residual: np.ndarray
+    prediction: np.ndarray
+    converged: np.ndarray
+    cost: float
+    shared: Shared
+    history: list = field(default_factory=list)
+    x: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def iterations(self) -> int:
+        return len(self.history) - 1
+
+    def chi2_per_sample(self) -> float:
+        """Mean squared whitened residual over the converged samples and channels."""
+        e = self.residual[self.converged]
+        return float(np.mean(e ** 2)) if e.size else float("nan")
+
+    @property
+    def std(self) -> np.ndarray:
+        """Posterior std of ``phi[free]``."""
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+
+def evaluate(model, data: FleetData, delta, phi, derivatives=False, x0=None):
+    """The model at every sample with its engine's ``delta`` and the shared ``phi``:
+    ``(evaluation, whitened residual, usable)``; a sample that did not converge has a zero
+    residual and ``usable`` False. Warm-started from ``x0`` when given (from the guess table
+    when that fails)."""
+    est = np.arange(len(THETA_NAMES))
+    ev = model.evaluate(data.w, delta[data.unit], data.channels, phi, derivatives=derivatives,
+                        x0=x0, est_idx=est)
+    if x0 is not None and not ev.converged.all():
+        ev = model.evaluate(data.w, delta[data.unit], data.channels, phi,
+                            derivatives=derivatives, est_idx=est)
+    e = (data.y - ev.y) / data.sigma
+    ok = ev.converged & np.all(np.isfinite(e), axis=1)
+    return ev, np.where(ok[:, None], e, 0.0), ok
+
+
+def _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta, starts):
+    """Gauss-Newton blocks at the current point: per engine ``Huu`` (U, k, k), ``gu`` (U, k),
+    ``Hub`` (U, k, p); shared ``Hbb`` (p, p), ``gb`` (p,) (gradients of ``-L``)."""
+    k = len(THETA_NAMES)
+    sig = data.sigma[:, :, None]
+    A = np.where(ok[:, None, None], ev.d_theta / sig, 0.0)
+    B = np.where(ok[:, None, None], ev.d_phi[:, :, shared.free] / sig, 0.0)
+    Huu = np.add.reduceat(np.einsum("nmi,nmj->nij", A, A), starts, axis=0) \
+        + np.eye(k)[None] / s_theta ** 2
+    gu = np.add.reduceat(np.einsum("nmi,nm->ni", A, e), starts, axis=0) - delta / s_theta ** 2
+    Hub = np.add.reduceat(np.einsum("nmi,nmj->nij", A, B), starts, axis=0)
+    Hbb = np.einsum("nmi,nmj->ij", B, B) + np.diag(1.0 / shared.prior ** 2)
+    gb = np.einsum("nmi,nm->i", B, e) - phi[shared.free] / shared.prior ** 2
+    return Huu, gu, Hub, Hbb, gb
+
+
+def _step(Huu, gu, Hub, Hbb, gb, lam, frozen, frozen_u):
+    """The damped step of every engine and of the shared block (Schur complement on the
+    shared block, module docstring); ``frozen`` shared parameters and ``frozen_u`` (U, k)
+    engine parameters (at a bound, pushed out) do not move."""
+    k = Huu.shape[1]
+    Hd = Huu + lam * np.diagonal(Huu, axis1=1, axis2=2)[:, :, None] * np.eye(k)[None]
+    if frozen_u.any():
+        keep = ~frozen_u
+        Hd = Hd * keep[:, :, None] * keep[:, None, :] + np.eye(k)[None] * frozen_u[:, :, None]
+        gu = gu * keep
+        Hub = Hub * keep[:, :, None]
+    Hinv = np.linalg.inv(Hd)
+    if not len(gb):
+        return np.zeros(0), np.einsum("uij,uj->ui", Hinv, gu)
+    S = Hbb + lam * np.diag(np.diag(Hbb)) - np.einsum("uib,uij,ujc->bc", Hub, Hinv, Hub)
+    r = gb - np.einsum("uib,uij,uj->b", Hub, Hinv, gu)
+    S[frozen, :] = 0.0
+    S[:, frozen] = 0.0
+    S[frozen, frozen] = 1.0
+    r[frozen] = 0.0
+    db = np.linalg.solve(S, r)
+    return db, np.einsum("uij,uj->ui", Hinv, gu - Hub @ db)
+
+
+def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
+              s_theta: float = S_THETA, max_iter: int = MAX_ITER, x0=None) -> FleetFit:
+    """Minimise ``L`` (module docstring) over ``phi[shared.free]`` and every engine's
+    ``delta``; ``model`` a :class:`calibration.discrepancy.candidates.CandidateModel`. The
+    other entries of ``phi`` stay at ``phi0`` (``Shared.none()``: the engines only, under an
+    adaptation fitted on others)."""
+    k = len(THETA_NAMES)
+    phi = np.zeros(model.n_phi) if phi0 is None else np.array(phi0, float)
+    delta = np.zeros((data.n_units, k)) if delta0 is None else np.array(delta0, float)
+    free = shared.free
+    starts = np.searchsorted(data.unit, np.arange(data.n_units))
+
+    def cost_of(e, dl, ph):
+        return 0.5 * float(np.sum(e ** 2) + np.sum((dl / s_theta) ** 2)
+                           + np.sum((ph[free] / shared.prior) ** 2))
+
+    ev, e, ok = evaluate(model, data, delta, phi, True, x0)
+    cost = cost_of(e, delta, phi)
+    history = [cost]
+    lam = 1e-3
+    for _ in range(max_iter):
+        blocks = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta, starts)
+        b = phi[free]
+        accepted = False
+        while lam <= 1e8:
+            db, dd = _step(*blocks, lam, np.zeros(len(b), bool), np.zeros(delta.shape, bool))
+            frozen = ((b <= shared.lower) & (db < 0)) | ((b >= shared.upper) & (db > 0))
+            frozen_u = ((delta <= THETA_LO) & (dd < 0)) | ((delta >= THETA_HI) & (dd > 0))
+            if frozen.any() or frozen_u.any():
+                db, dd = _step(*blocks, lam, frozen, frozen_u)
+            new_phi = phi.copy()
+            new_phi[free] = np.clip(b + db, shared.lower, shared.upper)
+            new_delta = np.clip(delta + dd, THETA_LO, THETA_HI)
+            ev2, e2, ok2 = evaluate(model, data, new_delta, new_phi, False, ev.x)
+            cost2 = cost_of(e2, new_delta, new_phi)
+            if cost2 < cost and ok2.sum() >= ok.sum():
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted:
+            break
+        decrease = (cost - cost2) / max(cost, 1e-300)
+        delta, phi, cost = new_delta, new_phi, cost2
+        ev, e, ok = evaluate(model, data, delta, phi, True, ev2.x)
+        history.append(cost)
+        lam = max(lam / 10.0, 1e-9)
+        if decrease < REL_TOL:
+            break
+    cov = np.zeros((0, 0))
+    if len(free):
+        Huu, _, Hub, Hbb, _ = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta,
+                                                starts)
+        cov = np.linalg.pinv(Hbb - np.einsum("uib,uij,ujc->bc", Hub, np.linalg.inv(Huu), Hub))
+    return FleetFit(phi, delta, cov, e, ev.y, ok, cost, shared, history, ev.x)

@@ -1,0 +1,102 @@
+"""The candidates a performance engineer uses to match a model to a real engine, each with a
+prior and physical bounds.
+
+Every candidate is one effect instance of the library (:mod:`engine_model.physics.effects`),
+entered or left out as a whole (a *group* of parameters):
+
+=====================  ====================================================================
+group                  what it adapts
+=====================  ====================================================================
+design_scaling_<c>     the component's efficiency and flow level (design-point scaling)
+map_scaling_<c>        their change with the component's corrected speed, linear and
+                       quadratic in ``n_corr - 1`` (condition-dependent scaling: Li &
+                       Pilidis 2010; multi-point adaptation: Tsoutsanis et al. 2015)
+customer_bleed         air taken off the HPC exit, and its change with altitude
+hp_offtake             shaft power taken off the HP spool
+reynolds               the loss of efficiency (and flow) at low Reynolds number index
+inlet_loss             intake pressure loss, constant and ~ Mach^2
+nozzle_area            the core and bypass nozzle throat areas
+sensor_gain_<ch>       a sensor convention: the channel reads ``(1 + gain)`` times the
+                       model's quantity (``sensor_bias`` with its offset held at zero: a
+                       gain is scale-free and, unlike an offset, has a documented range)
+=====================  ====================================================================
+
+for ``c`` in fan, LPC, HPC, HPT, LPT and every fitted channel ``ch``.
+
+Prior and bounds of every parameter: the prior std is the larger end of its *realistic*
+range (``Param.range``, e.g. 4 % bleed, +-3 % on a design-point scaler), the bounds its
+*valid* range (``Param.valid``), closed at the neutral value on a one-sided parameter (a
+bleed cannot be negative). A fit that lands on a bound says so (:mod:`.report`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibration.discrepancy.candidates import STEADY_DEFAULT, Candidate, _make
+from engine_model.physics.effect_library import COMPONENT_MODS
+from engine_model.physics.effects import parse_effect_spec
+from engine_model.validation import InputError
+
+#: The steady candidates, in the order they are carried.
+STEADY_GROUPS = ("design_scaling", "map_scaling", *STEADY_DEFAULT)
+SENSOR_GROUP = "sensor_gain"
+
+
+def _prior(effect, params) -> np.ndarray:
+    out = []
+    by_name = {q.name: q for q in effect.params}
+    for name in params:
+        q = by_name[name]
+        r = q.range or (None, None)
+        ends = [abs(v - q.default) for v in r if v is not None]
+        out.append(max(ends) if ends and max(ends) > 0 else 1.0)
+    return np.asarray(out, float)
+
+
+def check_names(names=None) -> tuple:
+    """The candidate names to use (default all), each checked."""
+    names = tuple(names) if names is not None else (*STEADY_GROUPS, SENSOR_GROUP)
+    unknown = [n for n in names if n not in (*STEADY_GROUPS, SENSOR_GROUP)]
+    if unknown or not names:
+        raise InputError(f"--candidates: unknown candidate(s) {', '.join(unknown) or '(none)'}"
+                         f"; known: {', '.join((*STEADY_GROUPS, SENSOR_GROUP))}")
+    return names
+
+
+def build_groups(channels, names=None) -> list[Candidate]:
+    """Every candidate of ``names`` (registry names of :data:`STEADY_GROUPS` and
+    ``sensor_gain``; default all), with ``index`` into one global ``phi`` and each
+    candidate's ``prior`` attached."""
+    names = check_names(names)
+    out = []
+    for n in STEADY_GROUPS:
+        if n not in names:
+            continue
+        if n in ("design_scaling", "map_scaling"):
+            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in COMPONENT_MODS]
+        else:
+            out.append(_make(parse_effect_spec(n)))
+    if SENSOR_GROUP in names:
+        for ch in channels:
+            c = _make(parse_effect_spec(f"sensor_bias:channel={ch}"), ch)
+            keep = [i for i, q in enumerate(c.params) if q == "gain"]
+            c.params = tuple(c.params[i] for i in keep)
+            c.lower, c.upper, c.valid = c.lower[keep], c.upper[keep], c.valid[keep]
+            c.fixed = ("offset",)
+            c.name = f"{SENSOR_GROUP}_{ch}"
+            out.append(c)
+    k = 0
+    for c in out:
+        c.index = np.arange(k, k + len(c.params))
+        c.prior = _prior(c.effect, c.params)
+        k += len(c.params)
+    return out
+
+
+def bounds(c: Candidate) -> tuple[np.ndarray, np.ndarray]:
+    """``(lower, upper)`` of a candidate's parameters: the valid range, closed at the
+    neutral value on a one-sided parameter."""
+    lo = np.where(np.isfinite(c.lower), c.lower, c.valid[:, 0])
+    hi = np.where(np.isfinite(c.upper), c.upper, c.valid[:, 1])
+    return np.maximum(lo, c.valid[:, 0]), np.minimum(hi, c.valid[:, 1])

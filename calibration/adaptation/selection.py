@@ -1,0 +1,189 @@
+"""Which candidates enter: forward selection judged out of sample, by leaving an operating
+condition out and by holding engines out.
+
+Out-of-sample error of a set of candidates (:func:`condition_out`): for every operating
+condition ``c``, the fleet fit (:func:`.fleet_fit.fit_fleet`) on the samples of the *other*
+conditions, then the prediction of condition ``c``'s samples with each engine's fitted
+health and the shared parameters; the score is the mean squared whitened residual of the
+held-out samples over every condition (``chi2_out``). A candidate that only bends the model
+toward the conditions it was fitted on raises it.
+
+Forward selection (:func:`select`), the greedy stepwise procedure with an out-of-sample
+criterion (Hastie, Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed.,
+sec. 3.3.2 and 7.10):
+
+1. *screen*: every candidate not yet in is added to the current fit and refitted briefly
+   (:data:`SCREEN_ITER` Gauss-Newton steps, warm-started); candidates are ranked by the drop
+   of the in-sample objective;
+2. *judge*: the :data:`TOP` best are refitted fully and scored by :func:`condition_out`;
+3. the best enters only if it lowers ``chi2_out`` by at least :data:`MIN_GAIN` (relative);
+   otherwise the selection stops. Nothing is fitted per operating point: every candidate is
+   one set of numbers for the whole envelope.
+
+Held-out engines (:func:`engines_out`): the engines are split into folds; the shared
+parameters are fitted on the others' engines, then each held-out engine's own health is
+fitted with them fixed, and its residual reported (``chi2`` per sample and channel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .fleet_fit import FleetData, FleetFit, Shared, evaluate, fit_fleet
+from .groups import bounds
+
+#: Gauss-Newton steps of a screening refit.
+SCREEN_ITER = 4
+#: Candidates judged out of sample per step.
+TOP = 3
+#: Relative drop of the out-of-sample error a candidate must bring to enter (a judgement:
+#: well above the run-to-run change of a refit, ~0.1 %, and small enough to let an effect
+#: that fixes one channel at one condition in).
+MIN_GAIN = 0.02
+
+
+def shared_of(groups, chosen) -> Shared:
+    """The :class:`Shared` parameters of the candidates named ``chosen``."""
+    sel = [c for c in groups if c.name in set(chosen)]
+    if not sel:
+        return Shared.none()
+    lo, hi = zip(*(bounds(c) for c in sel), strict=True)
+    return Shared(np.concatenate([c.index for c in sel]).astype(int),
+                  np.concatenate([c.prior for c in sel]), np.concatenate(lo),
+                  np.concatenate(hi))
+
+
+@dataclass
+class OutOfSample:
+    """Per held-out condition: ``chi2`` (mean squared whitened residual), ``mean_error_pct``
+    (channel -> 100 (mean prediction - mean reading) / mean reading over its samples);
+    ``chi2_out`` over every held-out sample."""
+
+    chi2_out: float
+    chi2: dict = field(default_factory=dict)
+    mean_error_pct: dict = field(default_factory=dict)
+
+
+def mean_errors(data: FleetData, prediction, ok) -> dict:
+    """Condition -> channel -> 100 (mean prediction - mean reading) / mean reading."""
+    out = {}
+    for c in np.unique(data.condition):
+        rows = (data.condition == c) & ok
+        p, y = prediction[rows].mean(axis=0), data.y[rows].mean(axis=0)
+        out[int(c)] = {ch: float(100.0 * (p[j] - y[j]) / y[j])
+                       for j, ch in enumerate(data.channels)}
+    return out
+
+
+def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> OutOfSample:
+    """The out-of-sample error of ``shared`` by leaving each condition out (module
+    docstring), every fit warm-started at ``start``."""
+    sq, n = 0.0, 0
+    res = OutOfSample(float("nan"))
+    for c in np.unique(data.condition):
+        held = data.condition == c
+        train = data.subset(~held)
+        # engines seen at the other conditions keep their rows' order in both subsets
+        fit = fit_fleet(model, train, shared, start.phi, start.delta[np.isin(
+            np.arange(data.n_units), np.unique(data.unit[~held]))])
+        test = data.subset(held)
+        pos = {u: i for i, u in enumerate(train.units)}
+        delta = np.array([fit.delta[pos[u]] if u in pos else np.zeros(fit.delta.shape[1])
+                          for u in test.units])
+        ev, e, ok = evaluate(model, test, delta, fit.phi)
+        sq += float(np.sum(e[ok] ** 2))
+        n += int(ok.sum()) * e.shape[1]
+        res.chi2[int(c)] = float(np.mean(e[ok] ** 2))
+        res.mean_error_pct.update(mean_errors(test, ev.y, ok))
+    res.chi2_out = sq / max(n, 1)
+    return res
+
+
+@dataclass
+class Step:
+    """One step of the selection: the candidate tried, its out-of-sample error, entered?"""
+
+    candidate: str
+    chi2_in: float
+    chi2_out: float
+    entered: bool
+
+
+@dataclass
+class Selection:
+    """The chosen candidates (in order of entry), the final fit on every sample, the
+    out-of-sample error before (no candidate) and after, and the steps."""
+
+    chosen: list
+    fit: FleetFit
+    before: OutOfSample
+    after: OutOfSample
+    base_fit: FleetFit
+    steps: list = field(default_factory=list)
+
+
+def select(model, data: FleetData, groups, log=None, max_steps: int = 8) -> Selection:
+    """Forward selection of ``groups`` (module docstring) on ``data``."""
+    say = log or (lambda msg: None)
+    chosen: list = []
+    fit = fit_fleet(model, data, Shared.none())
+    base_fit = fit
+    oos = condition_out(model, data, Shared.none(), fit)
+    before = oos
+    say(f"no candidate: chi2 in {fit.chi2_per_sample():.3g}, out of sample "
+        f"{oos.chi2_out:.3g}")
+    steps = []
+    for _ in range(max_steps):
+        ranked = []
+        for c in groups:
+            if c.name in chosen:
+                continue
+            trial = fit_fleet(model, data, shared_of(groups, [*chosen, c.name]), fit.phi,
+                              fit.delta, max_iter=SCREEN_ITER, x0=fit.x)
+            ranked.append((trial.cost, c.name))
+        ranked.sort()
+        best = None
+        for _, name in ranked[:TOP]:
+            sh = shared_of(groups, [*chosen, name])
+            full = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x)
+            o = condition_out(model, data, sh, full)
+            say(f"  {name}: chi2 in {full.chi2_per_sample():.3g}, out of sample "
+                f"{o.chi2_out:.3g}")
+            if best is None or o.chi2_out < best[2].chi2_out:
+                best = (name, full, o)
+        if best is None:
+            break
+        name, full, o = best
+        entered = o.chi2_out < oos.chi2_out * (1.0 - MIN_GAIN)
+        steps.append(Step(name, full.chi2_per_sample(), o.chi2_out, entered))
+        if not entered:
+            say(f"stop: {name} does not lower the out-of-sample error by {MIN_GAIN:.0%}")
+            break
+        chosen.append(name)
+        fit, oos = full, o
+        say(f"+ {name}")
+    return Selection(chosen, fit, before, oos, base_fit, steps)
+
+
+def engines_out(model, data: FleetData, shared: Shared, start: FleetFit, folds: int = 3,
+                seed: int = 0) -> float:
+    """Mean squared whitened residual of held-out engines (module docstring): ``folds``
+    folds of engines drawn with ``seed``; the shared parameters fitted on the other folds
+    (warm-started at ``start``), each held-out engine's health fitted with them fixed."""
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(data.n_units)
+    sq, n = 0.0, 0
+    for k in range(folds):
+        out_units = order[k::folds]
+        held = np.isin(data.unit, out_units)
+        train = data.subset(~held)
+        keep = np.setdiff1d(np.arange(data.n_units), out_units)
+        fit = fit_fleet(model, train, shared, start.phi, start.delta[keep])
+        test = data.subset(held)
+        own = fit_fleet(model, test, Shared.none(), fit.phi)
+        e = own.residual[own.converged]
+        sq += float(np.sum(e ** 2))
+        n += e.size
+    return sq / max(n, 1)

@@ -1,0 +1,205 @@
+"""Adapting the engine model to a fleet (calibration.adaptation): noise from the data, the
+joint fit of shared effects and each engine's health, selection by leaving a condition out,
+the artefact and ``calibrate --model-effects``.
+
+The fleets are simulated at C-MAPSS's six FD002 operating points (data_samples), engines new
+with a manufacturing scatter of their health, C-MAPSS-like noise."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from calibration.adaptation import adapt, load_adapted, write_adapted
+from calibration.adaptation.data import fleet_data
+from calibration.adaptation.fleet_fit import Shared, fit_fleet
+from calibration.adaptation.groups import build_groups
+from calibration.adaptation.noise import noise_from_data
+from calibration.adaptation.selection import shared_of
+from calibration.discrepancy.candidates import CandidateModel
+from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel
+from engine_model.analysis.reference import default_reference_path, load_reference, reference_w
+from engine_model.physics.effects import parse_effect_spec
+from engine_model.validation import InputError
+
+TINY = Path(__file__).resolve().parents[1] / "data_samples" / "tiny"
+CHANNELS = ("T24", "T30", "T50", "P15", "P30", "Nf", "Nc")
+#: noise std per channel (about C-MAPSS FD002's within-engine early-life levels, P15 coarser)
+NOISE = {"T24": 0.3, "T30": 4.0, "T50": 4.0, "P15": 0.02, "P30": 0.4, "Nf": 0.03, "Nc": 4.0}
+CANDIDATES = ("design_scaling", "map_scaling", "nozzle_area")
+#: HPC efficiency 2 % lower at the part-power condition (corrected speed about 3.4 % below
+#: design): map_scaling eff_1 = 0.6 per unit of (n_corr - 1)
+SHAPE = "map_scaling:component=HPC,eff_1=0.6"
+
+
+def simulated_fleet(truth_effects=(), units=12, cycles=18, seed=0) -> pd.DataFrame:
+    """Engines flying one of the six FD002 conditions per cycle (seeded), health drawn per
+    engine (std 0.4 %), readings of ``CHANNELS`` with Gaussian noise ``NOISE``."""
+    rng = np.random.default_rng(seed)
+    w6 = reference_w(load_reference(default_reference_path())).to_numpy(float)
+    truth = EngineModel(effects=[parse_effect_spec(s) for s in truth_effects])
+    rows = []
+    for u in range(1, units + 1):
+        theta = rng.normal(0.0, 0.004, len(THETA_NAMES))
+        cond = rng.integers(0, 6, cycles)
+        w = w6[cond]
+        th = np.tile(theta, (cycles, 1))
+        res = truth.solve_series(w, th, truth.p_matrix(None, cycles))
+        assert res.converged.all()
+        y = truth.outputs_at(res.x, w, th, truth.p_matrix(None, cycles))
+        y = y[:, [OUTPUT_NAMES.index(c) for c in CHANNELS]]
+        y = y + rng.normal(0.0, 1.0, y.shape) * np.array([NOISE[c] for c in CHANNELS])
+        frame = pd.DataFrame(y, columns=list(CHANNELS))
+        frame.insert(0, "cycle", np.arange(1, cycles + 1))
+        frame.insert(0, "unit", u)
+        for j, name in enumerate(("alt", "Mach", "TRA", "T2")):
+            frame[name] = w[:, j]
+        frame["condition"] = cond + 1
+        rows.append(frame)
+    return pd.concat(rows, ignore_index=True)
+
+
+@pytest.fixture(scope="module")
+def candidate_model():
+    return CandidateModel(build_groups(CHANNELS, CANDIDATES))
+
+
+@pytest.fixture(scope="module")
+def shaped():
+    return simulated_fleet([SHAPE], seed=1)
+
+
+def test_noise_from_the_data_finds_the_simulated_levels():
+    df = simulated_fleet(units=20, cycles=20, seed=3)
+    table = noise_from_data(df, CHANNELS)
+    assert list(table.index) == [1, 2, 3, 4, 5, 6]
+    ratio = table / pd.Series(NOISE)[list(CHANNELS)]
+    # about 30 degrees of freedom per condition: within +-35 %
+    assert ratio.to_numpy().min() > 0.65 and ratio.to_numpy().max() < 1.35
+
+
+def test_noise_needs_two_samples_of_an_engine_and_refuses_a_flat_channel():
+    df = simulated_fleet(units=6, cycles=12, seed=4)
+    flat = df.assign(P15=14.7)
+    with pytest.raises(InputError, match="P15"):
+        noise_from_data(flat, CHANNELS)
+    one = df.groupby(["unit", "condition"]).head(1)
+    with pytest.raises(InputError, match="no engine has two early-life samples"):
+        noise_from_data(one, CHANNELS)
+
+
+def test_a_channel_written_to_a_coarse_resolution_keeps_its_rounding_noise():
+    df = simulated_fleet(units=6, cycles=12, seed=5)
+    df["P15"] = df["P15"].round(1)  # 0.1 psia: rounding std 0.029, more than the noise
+    table = noise_from_data(df, CHANNELS)
+    assert (table["P15"] >= 0.1 / np.sqrt(12) - 1e-12).all()
+
+
+def test_fleet_fit_separates_the_shared_level_from_each_engines_health(candidate_model):
+    """A fleet whose HPC efficiency is 1.5 % low in every engine: the shared design scaling
+    takes the offset, the engines' own health stays near zero on average."""
+    df = simulated_fleet(["design_scaling:component=HPC,eff=-0.015"], units=10, seed=2)
+    data, _ = fleet_data(df, CHANNELS)
+    groups = build_groups(CHANNELS, CANDIDATES)
+    sh = shared_of(groups, ["design_scaling_HPC"])
+    fit = fit_fleet(candidate_model, data, sh)
+    hpc = next(c for c in groups if c.name == "design_scaling_HPC")
+    eff, flow = fit.phi[hpc.index]
+    std = fit.std
+    assert abs(eff + 0.015) < 3 * std[0] + 1e-3 and abs(flow) < 3 * std[1] + 1e-3
+    assert abs(fit.delta[:, THETA_NAMES.index("HPC_eff_mod")].mean()) < 1e-3
+    # without the shared parameter the offset lands in every engine's health
+    own = fit_fleet(candidate_model, data, Shared.none())
+    assert own.delta[:, THETA_NAMES.index("HPC_eff_mod")].mean() < -0.005
+    # on one engine the two are the same residual: only the engines' prior tells them apart
+    assert abs(fit.chi2_per_sample() - own.chi2_per_sample()) < 0.01
+    assert fit.cost < own.cost - 5.0
+
+
+def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
+        candidate_model, shaped):
+    res = adapt(shaped, CHANNELS, CANDIDATES, model=candidate_model)
+    sel = res.selection
+    assert sel.chosen and sel.chosen[0] in ("map_scaling_HPC", "design_scaling_HPC")
+    assert "map_scaling_HPC" in sel.chosen
+    assert sel.after.chi2_out < 0.5 * sel.before.chi2_out
+    assert sel.after.chi2_out < 1.5  # the noise: 1
+    rec = res.record()
+    assert rec["selection"]["chi2_engines_out"]["after"] < rec["selection"][
+        "chi2_engines_out"]["before"]
+    p = {(r["candidate"], r["parameter"]): r for r in rec["parameters"]}
+    assert p[("map_scaling_HPC", "eff_1")]["value"] > 0.2
+    assert all(np.isfinite(r["std"]) and r["std"] > 0 for r in rec["parameters"])
+
+
+def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_model):
+    res = adapt(simulated_fleet(seed=7), CHANNELS, CANDIDATES, model=candidate_model)
+    assert res.selection.chosen == []
+    assert res.record()["effects"] == []
+
+
+def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candidate_model,
+                                                                 shaped):
+    res = adapt(shaped.iloc[: 12 * 18 // 2], CHANNELS, CANDIDATES, model=candidate_model)
+    out = write_adapted(res.record(), tmp_path / "adapted.json")
+    loaded = load_adapted(out)
+    assert loaded.effects == res.effects()
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "hyprog-adapted-model" and doc["data"]["units"] == 6
+    # refused: not an adapted model, a bad specification
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "hyprog-adapted-model", "version": 1,
+                               "effects": ["no_such_effect:x=1"]}))
+    with pytest.raises(InputError, match=r"bad\.json: effects\[0\]"):
+        load_adapted(bad)
+    bad.write_text("{}")
+    with pytest.raises(InputError, match="not an adapted model"):
+        load_adapted(bad)
+
+
+def test_calibrate_with_model_effects_records_the_adapted_model(tmp_path):
+    from cli.main import app
+    from engine_model import datasets
+    from tests.cli_checks import assert_user_error, cli_runner
+
+    df, meta = datasets.read_dataset(TINY, units=[1])
+    data = tmp_path / "fleet"
+    datasets.write_parquet(df[df["cycle"] <= 2].reset_index(drop=True), data, meta)
+    adapted = write_adapted({"effects": ["design_scaling:component=HPC,eff=-0.01"],
+                             "data": {"path": "test"}}, tmp_path / "adapted.json")
+    runner = cli_runner()
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "f"),
+                            "--model-effects", str(adapted), "--quiet"])
+    assert r.exit_code == 0, r.stderr
+    cal = datasets.read_metadata(tmp_path / "f")["calibration"]
+    assert cal["effects"] == ["design_scaling:component=HPC,eff=-0.01,flow=0"]  # canonical
+    assert cal["model_effects"]["sha256"] == load_adapted(adapted).sha256
+    # the model's HPC efficiency is 1 % lower, so the engine's own estimate rises by about 1 %
+    plain = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "g"),
+                                "--params", "HPC_eff_mod,HPT_eff_mod,LPT_eff_mod", "--quiet"])
+    shifted = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "h"),
+                                  "--params", "HPC_eff_mod,HPT_eff_mod,LPT_eff_mod",
+                                  "--model-effects", str(adapted), "--quiet"])
+    assert plain.exit_code == 0 and shifted.exit_code == 0, shifted.stderr
+    a = datasets.read_dataset(tmp_path / "g")[0]["HPC_eff_mod_hat"].iloc[-1]
+    b = datasets.read_dataset(tmp_path / "h")[0]["HPC_eff_mod_hat"].iloc[-1]
+    assert 0.007 < b - a < 0.013
+    missing = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "x"),
+                                  "--model-effects", str(tmp_path / "nope.json")])
+    assert_user_error(missing, "nope.json", "cannot read the adapted model")
+    assert not (tmp_path / "x").exists()
+
+
+def test_adapt_cli_refuses_bad_input_in_one_line(tmp_path):
+    from cli.main import app
+    from tests.cli_checks import assert_user_error, cli_runner
+
+    runner = cli_runner()
+    r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json")])
+    assert_user_error(r, "condition")  # the simulated fleet has no condition label
+    r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json"),
+                            "--candidates", "bleed"])
+    assert_user_error(r, "unknown candidate(s) bleed")
+    assert not (tmp_path / "a.json").exists()
