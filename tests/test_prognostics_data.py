@@ -11,7 +11,7 @@ import torch
 
 from engine_model.channels import THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
 from engine_model.validation import InputError
-from prognostics.features import check_table, resolve_inputs
+from prognostics.features import check_table, resolve_inputs, unobservable_columns
 from prognostics.scaling import MinMaxScaler
 from prognostics.splits import (
     CONFORMAL,
@@ -78,6 +78,25 @@ def test_a_set_whose_group_is_absent_is_an_error_not_a_smaller_set(make_features
         resolve_inputs("w+RUL", list(df.columns))
     with pytest.raises(InputError, match="unknown|no input column"):
         resolve_inputs("hybird", list(df.columns))
+
+
+def test_a_parameter_unobservable_in_every_unit_leaves_the_health_groups(make_features):
+    """``calibrate --params all`` writes NaN for a parameter it cannot observe: a column NaN
+    in every row is left out of theta_hat (and theta); one NaN in some rows stays an error."""
+    df, _ = make_features(units=(1, 2), test_units=())
+    hats = [c for c in df.columns if c.endswith("_hat") and c[:-4] in THETA_NAMES]
+    gone = df.assign(**{hats[0]: np.nan})
+    assert unobservable_columns(gone) == [hats[0]]
+    cols = resolve_inputs("hybrid", list(gone.columns), unobservable=unobservable_columns(gone))
+    assert hats[0] not in cols and hats[1] in cols
+    truth = resolve_inputs("truth-theta", list(gone.columns),
+                           unobservable=unobservable_columns(gone))
+    assert hats[0][:-4] not in truth and hats[1][:-4] in truth
+    some = df.copy()
+    some.loc[some.index[some.unit == 2][0], hats[0]] = np.nan
+    assert unobservable_columns(some) == []
+    with pytest.raises(InputError, match=f"unit 2, cycle 1, column {hats[0]}"):
+        check_table(some, resolve_inputs("hybrid", list(some.columns)))
 
 
 def test_check_table_names_unit_cycle_and_column_of_a_nan(make_features):
