@@ -60,6 +60,9 @@ def discover(
                                               "(default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
+    model_effects: Annotated[Path | None, typer.Option(
+        "--model-effects", help="Adapted model (hyprog adapt --out FILE): look for what that "
+        "model lacks.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -95,6 +98,10 @@ def discover(
                                seed=seed)
         check_names(opts.candidates)
         unit_list = parse_units(units)
+        fixed = ()
+        if model_effects is not None:
+            from calibration.adaptation import load_adapted
+            fixed = tuple(load_adapted(model_effects).effects)
         check_report_target(out, overwrite, (data,))  # before the run, not after it
         with output_lock(out):  # one writer per report; released on Ctrl-C / SIGTERM too
             df, _meta = read_dataset(data, units=unit_list)
@@ -107,7 +114,7 @@ def discover(
             show = not (as_json or quiet) and err.is_terminal
             say = (lambda msg: err.print(msg)) if show else None
             result = run(frames, setup, opts, base_model=get_model(quiet or as_json),
-                         source=data, progress=say)
+                         source=data, progress=say, fixed_effects=fixed)
             write_report(result, out, overwrite, (data,))
     if as_json:
         echo_json(report_dict(result))

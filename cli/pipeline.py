@@ -32,6 +32,9 @@ def pipeline(
         "scheduler address (tcp://host:port; the workers must read DATA and --out at the same "
         "paths: a shared file system) or 'local'; overrides [run] scheduler. Same numbers as "
         "without.")] = None,
+    model_effects: Annotated[Path | None, typer.Option(
+        "--model-effects", help="Adapted model (hyprog adapt --out FILE) for calibrate and "
+        "discover; overrides [calibrate] model_effects.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines and bars (they "
                                         "are drawn on a terminal only).")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
@@ -56,6 +59,8 @@ def pipeline(
             cfg["discover"]["augment"] = True
         given = {k: v for k, v in (("jobs", jobs), ("scheduler", scheduler)) if v is not None}
         cfg = merge(cfg, {"run": given}, "--jobs/--scheduler")
+        if model_effects is not None:
+            cfg["calibrate"]["model_effects"] = str(model_effects)
         err = console(stderr=True)
         quiet = quiet or as_json or not err.is_terminal  # progress on a terminal only
         log = (lambda msg: None) if quiet else (lambda msg: err.print(msg, soft_wrap=True))

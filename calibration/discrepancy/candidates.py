@@ -217,7 +217,7 @@ class CandidateModel:
     in candidate order after the steady solve."""
 
     def __init__(self, candidates: list[Candidate], design=None, compiled: bool = True,
-                 model=None):
+                 model=None, fixed=()):
         from engine_model import EngineModel
 
         self.candidates = candidates
@@ -225,12 +225,15 @@ class CandidateModel:
         steady = [c for c in candidates if not c.sensor]
         self.steady = steady
         self.sensor = [c for c in candidates if c.sensor]
-        if model is not None and steady:
+        # ``fixed``: effects held at their values under every candidate (an adapted model)
+        self.fixed = list(fixed)
+        if model is not None and (steady or self.fixed):
             raise InputError("CandidateModel: a given model serves no steady candidate")
         # no steady candidate: the given (base) model as it is, no variant to build
+        effects = [*self.fixed, *(c.effect for c in steady)]
         self.model = model if model is not None else EngineModel(
-            design=design, effects=[c.effect for c in steady], compiled=compiled)
-        self._set = EffectSet([c.effect for c in steady])
+            design=design, effects=effects, compiled=compiled)
+        self._set = EffectSet(effects)
         names = list(self._set.param_names)
         # global phi index -> column of the steady model's p
         self._steady_cols = []

@@ -152,17 +152,29 @@ def _screen_table(res, reports) -> list:
 
 def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
              options: DiscoverOptions | None = None, design=None, base_model=None,
-             source=None, progress=None) -> Discovery:
-    """Run the loop on the units ``frames`` (one DataFrame per unit, hyprog names)."""
+             source=None, progress=None, fixed_effects=()) -> Discovery:
+    """Run the loop on the units ``frames`` (one DataFrame per unit, hyprog names).
+
+    ``fixed_effects`` (effect instances or specifications, e.g. an adapted model's,
+    :mod:`calibration.adaptation`) are in the model at their values throughout: the loop
+    looks for what *that* model lacks. A candidate with the name of a fixed effect is not
+    tested (it is already in)."""
     t0 = time.perf_counter()
     o = options or DiscoverOptions()
     setup = setup or CalibrationSetup()
     say = progress or (lambda msg: None)
+    from engine_model.physics.effects import parse_effect_spec
+
+    fixed = [parse_effect_spec(e) if isinstance(e, str) else e for e in fixed_effects]
     if base_model is None:
         from engine_model.runtime.shared_model import default_model
 
         base_model = default_model()
     design = design or getattr(base_model, "design", None)
+    if fixed:  # the warm start's estimator runs on the adapted model too
+        from engine_model import EngineModel
+
+        base_model = EngineModel(design=design, effects=fixed)
     if isinstance(o.drift, float | int) and not isinstance(o.drift, bool):
         from dataclasses import replace
 
@@ -171,8 +183,16 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
     sensors = units[0].series.sensors
     carried, cands = build_candidates(o.candidates, sensors,
                                       all(u.cycle is not None for u in units))
+    if fixed:
+        names = {e.name for e in fixed}
+        carried = [c for c in carried if c.name not in names]
+        cands = [c for c in cands if c.name not in names]
+        k = 0
+        for c in carried:
+            c.index = np.arange(k, k + len(c.params))
+            k += len(c.params)
     say(f"building the candidate model ({len(cands)} candidates to test)")
-    cm = CandidateModel(carried, design=design)
+    cm = CandidateModel(carried, design=design, fixed=fixed)
     problem = Problem(units, setup, cm)
     say(f"null fit: warm start {o.method}")
     phi0 = np.zeros(cm.n_phi)
@@ -349,7 +369,8 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
             "candidates": [c.name for c in cands],
             "held_out": masks is not None, "tests": leftover["channels"],
             "nonconverged": final.n_nonconverged,
-            "theta_names": list(THETA_NAMES)}
+            "theta_names": list(THETA_NAMES),
+            "model_effects": [e.spec() for e in fixed]}
     out = Discovery(verdict, found, ambiguous, unknown, before, after, screens, noise, drift,
                     theta_error, rejected, diag)
     out.plots = {"problem": problem, "before": first_null, "after": final}

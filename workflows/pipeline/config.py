@@ -52,6 +52,9 @@ table            key                  meaning [default]
                                       fleet's ten-flight lives need it, README]
                  ``noise_scale``      multiplier of the documented sensor noise [1.0]
                  ``prior_std``        prior std of theta [0.02]
+                 ``model_effects``    an adapted model (``hyprog adapt --out FILE``): its
+                                      effects are in the model of calibrate and discover;
+                                      its SHA-256 is in both stages' fingerprints [""]
 ``discover``     ``enabled``          run the discrepancy loop [true]
                  ``method``           its warm-start estimator [ukf]
                  ``candidates``       effects to test [the library's steady and sensor effects]
@@ -146,7 +149,7 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "calibrate": {"method": (_STR, "ukf"), "params": (_NAMES, None),
                   "sensors": (_NAMES, None), "drift": (_FLOAT, 0.01),
                   "noise_scale": (_FLOAT, _SETUP.noise_scale),
-                  "prior_std": (_FLOAT, _SETUP.prior_std)},
+                  "prior_std": (_FLOAT, _SETUP.prior_std), "model_effects": (_STR, "")},
     "discover": {"enabled": (_BOOL, True), "method": (_STR, "ukf"),
                  "candidates": (_NAMES, None), "alpha": (_FLOAT, 0.01),
                  "max_effects": (_INT, 3), "drift": ((_STR, _FLOAT), "mle"),

@@ -159,6 +159,9 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
     dfp = files_fingerprint(data)
     summaries["data"] = {"data": str(data), "label": label, "fingerprint": dfp}
     base = {"data": dfp, "units": data_cfg["units"]}
+    adapted = ctx.adapted  # read and checked before any stage runs
+    if adapted is not None:
+        base["model_effects"] = adapted.sha256
     timings["data"] = {"status": "checked", "seconds": time.perf_counter() - t0}
     cal = step("calibrate", {"calibrate": cfg["calibrate"]}, base, stages.calibrate, data)
     disc = None

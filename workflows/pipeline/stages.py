@@ -61,6 +61,17 @@ class Context:
         return self.config["run"]["jobs"]
 
     @property
+    def adapted(self):
+        """The adapted model of ``[calibrate] model_effects`` (:mod:`calibration.adaptation`),
+        or None."""
+        path = self.config["calibrate"]["model_effects"]
+        if not path:
+            return None
+        from calibration.adaptation import load_adapted
+
+        return load_adapted(path)
+
+    @property
     def cluster(self):
         """The Dask cluster of ``[run] scheduler`` (:func:`engine_model.runtime.cluster.connect`),
         connected on first use (a resumed run whose stages are done starts none); None
@@ -179,9 +190,12 @@ def _calibrate_into(ctx: Context, table: Path, data: Path, effects=()):
     if not ctx.quiet:
         def progress(done, total):
             ctx.log(f"  calibrated {done} of {total} unit(s)")
+    adapted = ctx.adapted
     return calibrate_fleet(data, c["method"], calibration_setup(ctx.config), {},
                            ctx.config["data"]["units"], ctx.jobs, ctx.cluster, table,
-                           keep_results=False, progress=progress, effects=effects)
+                           keep_results=False, progress=progress,
+                           effects=[*(adapted.effects if adapted else ()), *effects],
+                           model_source=adapted.provenance() if adapted else None)
 
 
 def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
@@ -219,8 +233,9 @@ def discover(ctx: Context, folder: Path, data: Path) -> dict:
     df, _ = _read(data, ctx.config["data"]["units"])
     frames = [g for _, g in df.groupby("unit", sort=True)]
     say = None if ctx.quiet else (lambda msg: ctx.log(f"  {msg}"))
+    adapted = ctx.adapted
     result = run(frames, setup, opts, base_model=default_model(), source=str(data),
-                 progress=say)
+                 progress=say, fixed_effects=tuple(adapted.effects) if adapted else ())
     write_report(result, folder / "report")
     r = report_dict(result)
     return _round_trip({"report": ctx.rel(folder / "report"), "verdict": r["verdict"],
