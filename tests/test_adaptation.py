@@ -203,3 +203,16 @@ def test_adapt_cli_refuses_bad_input_in_one_line(tmp_path):
                             "--candidates", "bleed"])
     assert_user_error(r, "unknown candidate(s) bleed")
     assert not (tmp_path / "a.json").exists()
+
+
+def test_pipeline_refuses_a_bad_adapted_model_before_any_stage(tmp_path):
+    from cli.main import app
+    from tests.cli_checks import assert_user_error, cli_runner
+
+    bad = tmp_path / "adapted.json"
+    bad.write_text(json.dumps({"format": "hyprog-adapted-model", "version": 2,
+                               "effects": []}))
+    r = cli_runner().invoke(app, ["pipeline", "--out", str(tmp_path / "run"),
+                                  "--model-effects", str(bad)])
+    assert_user_error(r, "adapted.json", "version 2")
+    assert not (tmp_path / "run").exists()

@@ -122,6 +122,17 @@ def test_two_effects_at_once_are_both_found(bleed_fleet, model):
     assert bias["ci95"]["offset"][0] <= 6.0 <= bias["ci95"]["offset"][1]
 
 
+def test_an_adapted_model_that_carries_the_effect_leaves_nothing_missing(bleed_fleet, model):
+    """``fixed_effects`` (an adapted model's, ``discover --model-effects``): the bleed is in
+    the model at its true size, so the loop finds nothing and does not test it again."""
+    d = discover([bleed_fleet], SETUP, DiscoverOptions(drift=0.01, **FAST), base_model=model,
+                 fixed_effects=(f"customer_bleed:f0={BLEED}",))
+    assert d.verdict == "nothing missing", (d.verdict, d.found, d.unknown)
+    assert "customer_bleed" not in d.diagnostics["candidates"]
+    (spec,) = d.diagnostics["model_effects"]
+    assert parse_effect_spec(spec).values["f0"] == pytest.approx(BLEED)
+
+
 def test_withheld_effect_is_an_unknown_effect_on_the_right_channels(bleed_fleet, model):
     names = tuple(n for n in STEADY_DEFAULT if n != "customer_bleed") + ("sensor_bias",
                                                                         "sensor_drift")
