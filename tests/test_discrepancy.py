@@ -122,6 +122,23 @@ def test_two_effects_at_once_are_both_found(bleed_fleet, model):
     assert bias["ci95"]["offset"][0] <= 6.0 <= bias["ci95"]["offset"][1]
 
 
+def test_the_block_structured_step_finds_what_the_dense_step_finds(bleed_fleet, bleed_found,
+                                                                   model, monkeypatch):
+    """Large problems (many units) solve the null fit in the Gauss-Newton matrix's block
+    structure (``normal_matrix``, an active set for the bounds); forced here on one unit, it
+    names the same effect at the same size."""
+    from calibration.discrepancy import confirm, null_fit, score_statistics
+
+    for mod in (null_fit, score_statistics, confirm):
+        monkeypatch.setattr(mod, "DENSE_MAX", 0)
+    d = discover([bleed_fleet], SETUP, DiscoverOptions(drift=0.01, **FAST), base_model=model)
+    assert [f["name"] for f in d.found] == [f["name"] for f in bleed_found.found]
+    assert d.found[0]["params"]["f0"] == pytest.approx(bleed_found.found[0]["params"]["f0"],
+                                                       rel=1e-3)
+    assert d.found[0]["std"]["f0"] == pytest.approx(bleed_found.found[0]["std"]["f0"],
+                                                    rel=1e-3)
+
+
 def test_an_adapted_model_that_carries_the_effect_leaves_nothing_missing(bleed_fleet, model):
     """``fixed_effects`` (an adapted model's, ``discover --model-effects``): the bleed is in
     the model at its true size, so the loop finds nothing and does not test it again."""

@@ -49,3 +49,34 @@ def test_a_smooth_error_within_flights_is_structure_without_the_size_test():
     ch = out["channels"]["B"]
     assert ch["p_white"] < 1e-6 and ch["p_operating"] < 1e-6
     assert out["hint"]["B"]["terms"][0] == "TRA"
+
+
+def test_the_block_structured_normal_matrix_solves_like_the_dense_one():
+    """``NormalMatrix.solve`` (with some coordinates held) and ``schur`` against dense
+    algebra on a random bordered block-diagonal matrix."""
+    from calibration.discrepancy.normal_matrix import NormalMatrix
+
+    rng = np.random.default_rng(0)
+    blocks, borders, offs = [], [], [0]
+    for n in (6, 9, 3):
+        a = rng.normal(size=(n, n))
+        blocks.append(a @ a.T + n * np.eye(n))
+        borders.append(rng.normal(size=(n, 5)))
+        offs.append(offs[-1] + n)
+    d = rng.normal(size=(5, 5))
+    H = NormalMatrix(blocks, borders, d @ d.T + 40 * np.eye(5), np.array(offs))
+    nt, free = H.n_theta, np.array([0, 2, 3])
+    sel = np.r_[np.arange(nt), nt + free]
+    Hs = H.dense()[np.ix_(sel, sel)]
+    r = rng.normal(size=len(sel))
+    np.testing.assert_allclose(H.solve(free, r), np.linalg.solve(Hs, r), atol=1e-10)
+    held = np.zeros(len(sel), bool)
+    held[[1, 5, nt + 1]] = True
+    x = H.solve(free, np.where(held, 0.3, r), held)
+    keep = ~held
+    rhs = r[keep] - Hs[np.ix_(keep, held)] @ np.full(3, 0.3)
+    ref = np.linalg.solve(Hs[np.ix_(keep, keep)], rhs)
+    np.testing.assert_allclose(x[keep], ref, atol=1e-10)
+    np.testing.assert_allclose(x[held], 0.3)
+    np.testing.assert_allclose(np.linalg.inv(H.schur(free)), np.linalg.inv(Hs)[nt:, nt:],
+                               atol=1e-12)

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .null_fit import FitState, Problem, fit
+from .null_fit import DENSE_MAX, FitState, Problem, fit
 from .score_statistics import chibar_pvalue
 
 MIN_SHARE = 0.4
@@ -101,10 +101,14 @@ def parameter_cov(problem: Problem, state: FitState) -> np.ndarray:
     matrix over (Theta, phi_free)."""
     nt = problem.n_theta
     sel = np.concatenate([np.arange(nt), nt + state.free])
-    Hs = state.H[np.ix_(sel, sel)]
-    d = np.sqrt(np.maximum(np.diag(Hs), 1e-300))
-    inv = np.linalg.pinv(Hs / np.outer(d, d)) / np.outer(d, d)
-    return inv[nt:, nt:]
+    if len(sel) <= DENSE_MAX:
+        Hs = state.H.dense()[np.ix_(sel, sel)]
+        d = np.sqrt(np.maximum(np.diag(Hs), 1e-300))
+        inv = np.linalg.pinv(Hs / np.outer(d, d)) / np.outer(d, d)
+        return inv[nt:, nt:]
+    S = state.H.schur(state.free)  # every theta marginalised out, in the block structure
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    return np.linalg.pinv(S / np.outer(d, d)) / np.outer(d, d)
 
 
 def confirm(problem: Problem, null: FitState, candidate, phi1: np.ndarray, weights,

@@ -44,6 +44,14 @@ from calibration.series import UnitSeries, prepare_unit
 from engine_model.validation import InputError
 
 from .candidates import CandidateModel
+from .normal_matrix import NormalMatrix
+
+#: Above this many unknowns (theta of every cycle and the free phi) the Gauss-Newton step is
+#: solved in the matrix's block structure with an active set for the bounds
+#: (:func:`structured_step`); at or below it, densely with a bounded least-squares solver
+#: (exact for the box constraints). The dense factorisation costs the cube of the size: 85
+#: C-MAPSS engines x 40 cycles x 3 parameters (10,200 unknowns) took more than 20 minutes.
+DENSE_MAX = 1500
 
 
 @dataclass
@@ -226,10 +234,10 @@ class Problem:
     # ------------------------------------------------------------------ normal equations
     def normal_equations(self, lin: Linearization, Theta, q: float | None = None):
         """Gradient ``grad`` of L and Gauss-Newton matrix ``H`` over ``[Theta (all units),
-        phi (every candidate)]``."""
+        phi (every candidate)]``, ``H`` in its block structure (:class:`NormalMatrix`)."""
         nt, n_phi = self.n_theta, self.n_phi
-        H = np.zeros((nt + n_phi, nt + n_phi))
         grad = np.zeros(nt + n_phi)
+        blocks, borders = [], []
         for i, u in enumerate(self.units):
             sl = slice(self.offsets[i], self.offsets[i + 1])
             C, k = u.n_cycles, self.k
@@ -237,28 +245,26 @@ class Problem:
             for c in range(C):
                 blk[c * k:(c + 1) * k, c * k:(c + 1) * k] = lin.A[i][c]
             lam = self.prior_precision(u, q)
-            H[sl, sl] = blk + lam
-            Bf = lin.B[i].reshape(C * k, n_phi)
-            H[sl, nt:] = Bf
-            H[nt:, sl] = Bf.T
+            blocks.append(blk + lam)
+            borders.append(lin.B[i].reshape(C * k, n_phi))
             grad[sl] = lin.g_th[i].ravel() + lam @ (Theta[i] - self.mu0).ravel()
-        H[nt:, nt:] = lin.D
         grad[nt:] = lin.g_phi
-        return grad, H
+        return grad, NormalMatrix(blocks, borders, lin.D.copy(), np.asarray(self.offsets))
 
 
 @dataclass
 class FitState:
     """A converged fit: ``Theta`` (list of (C_u, k)), ``phi`` (global), ``free`` (indices of
     phi that were fitted), the linearization ``lin`` at the solution (with derivatives),
-    ``grad`` / ``H`` over [Theta, every phi], the objective ``L``, and ``iterations``."""
+    ``grad`` / ``H`` over [Theta, every phi] (``H`` a :class:`NormalMatrix`), the objective
+    ``L``, and ``iterations``."""
 
     Theta: list
     phi: np.ndarray
     free: np.ndarray
     lin: Linearization
     grad: np.ndarray
-    H: np.ndarray
+    H: NormalMatrix
     L: float
     iterations: int
     converged: bool
@@ -323,14 +329,19 @@ def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: in
     while it < max_iter:
         it += 1
         grad, H = problem.normal_equations(lin, Theta)
-        g, Hs = grad[sel], H[np.ix_(sel, sel)]
-        d = np.sqrt(np.maximum(np.diag(Hs), 1e-300))
-        Hn = Hs / np.outer(d, d) + 1e-12 * np.eye(len(sel))
-        R = np.linalg.cholesky(Hn).T
-        b = np.linalg.solve(R.T, -g / d)
+        g = grad[sel]
         lo, hi = _bounds(problem, Theta, phi, free)
-        step = lsq_linear(R, b, bounds=(lo * d, hi * d), method="bvls").x / d
-        pred = -(g @ step + 0.5 * step @ Hs @ step)
+        if len(sel) <= DENSE_MAX:
+            Hs = H.dense()[np.ix_(sel, sel)]
+            d = np.sqrt(np.maximum(np.diag(Hs), 1e-300))
+            Hn = Hs / np.outer(d, d) + 1e-12 * np.eye(len(sel))
+            R = np.linalg.cholesky(Hn).T
+            b = np.linalg.solve(R.T, -g / d)
+            step = lsq_linear(R, b, bounds=(lo * d, hi * d), method="bvls").x / d
+            pred = -(g @ step + 0.5 * step @ Hs @ step)
+        else:
+            step = structured_step(H, free, g, lo, hi)
+            pred = -(g @ step + 0.5 * step @ quad(H, free, step))
         if pred < rtol * (1.0 + abs(L)):
             done = True
             break
@@ -359,6 +370,41 @@ def fit(problem: Problem, Theta, phi, free=(), masks=None, xs=None, max_iter: in
             break
     grad, H = problem.normal_equations(lin, Theta)
     return FitState(Theta, phi, free, lin, grad, H, L, it, done)
+
+
+def quad(H: NormalMatrix, free, x) -> np.ndarray:
+    """``H_SS x`` over ``S = [every theta, phi[free]]`` from the blocks."""
+    free = np.asarray(free, int)
+    nt = H.n_theta
+    out = np.zeros_like(x)
+    xf = x[nt:]
+    acc = H.D[np.ix_(free, free)] @ xf
+    for i, (blk, bor) in enumerate(zip(H.blocks, H.borders, strict=True)):
+        sl = slice(H.offsets[i], H.offsets[i + 1])
+        Bf = bor[:, free]
+        out[sl] = blk @ x[sl] + Bf @ xf
+        acc += Bf.T @ x[sl]
+    out[nt:] = acc
+    return out
+
+
+def structured_step(H: NormalMatrix, free, g, lo, hi, max_rounds: int = 20) -> np.ndarray:
+    """The Gauss-Newton step ``H_SS step = -g`` within the box ``[lo, hi]``, by an active
+    set: a coordinate whose step leaves the box is held on the bound it crosses and the rest
+    solved again, until the step is inside (at most ``max_rounds`` rounds; at the end the
+    step is clipped into the box)."""
+    fixed = np.zeros(len(g), bool)
+    val = np.zeros(len(g))
+    step = H.solve(free, -g)
+    for _ in range(max_rounds):
+        out = (step < lo) | (step > hi)
+        if not out.any():
+            break
+        fixed |= out
+        val = np.where(step < lo, lo, np.where(step > hi, hi, val))
+        rhs = np.where(fixed, val, -g)
+        step = H.solve(free, rhs, fixed)
+    return np.clip(step, lo, hi)
 
 
 COARSE_EVERY = 16

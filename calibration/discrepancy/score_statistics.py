@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from .null_fit import FitState, Problem
+from .null_fit import DENSE_MAX, FitState, Problem
 
 
 @dataclass
@@ -61,17 +61,24 @@ def efficient_scores(problem: Problem, null: FitState, accepted: np.ndarray) -> 
     N = np.concatenate([np.arange(nt), nt + accepted])
     T = nt + tested
     H, g = null.H, null.grad
-    HNN = H[np.ix_(N, N)]
-    HNT = H[np.ix_(N, T)]
-    d = np.sqrt(np.maximum(np.diag(HNN), 1e-300))
-    M = np.linalg.solve(HNN / np.outer(d, d) + 1e-12 * np.eye(len(N)),
-                        np.column_stack([HNT / d[:, None], g[N] / d]))
-    M = M / d[:, None]
+    if len(N) <= DENSE_MAX:  # the dense solve, as before the block structure
+        Hd = H.dense()
+        HNN = Hd[np.ix_(N, N)]
+        HNT = Hd[np.ix_(N, T)]
+        d = np.sqrt(np.maximum(np.diag(HNN), 1e-300))
+        M = np.linalg.solve(HNN / np.outer(d, d) + 1e-12 * np.eye(len(N)),
+                            np.column_stack([HNT / d[:, None], g[N] / d]))
+        M = M / d[:, None]
+        HTT = Hd[np.ix_(T, T)]
+    else:  # in the block structure (normal_matrix): linear in the number of units
+        HNT = np.vstack([H.theta_columns(tested), H.D[np.ix_(accepted, tested)]])
+        M = H.solve(accepted, np.column_stack([HNT, g[N]]))
+        HTT = H.D[np.ix_(tested, tested)]
     shift, corr = M[:, :-1], M[:, -1]
     s = -(g[T] - HNT.T @ corr)
-    S = H[np.ix_(T, T)] - HNT.T @ shift
+    S = HTT - HNT.T @ shift
     S = 0.5 * (S + S.T)
-    return Scores(tested, s, S, np.diag(H)[T].copy(), shift, N)
+    return Scores(tested, s, S, np.diag(H.D)[tested].copy(), shift, N)
 
 
 def cone_signs(candidate) -> np.ndarray:
