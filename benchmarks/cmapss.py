@@ -64,19 +64,26 @@ def hyprog(*args: str) -> None:
                    stderr=subprocess.DEVNULL)
 
 
-def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "default") -> Path:
+def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "default",
+                   adapted: Path | None = None) -> Path:
     """Import and calibrate ``subset`` into ``work`` (once) with ``hyprog calibrate --params
-    params``; the feature table's path."""
+    params`` (and ``--model-effects adapted``); the feature table's path."""
     raw = work / subset.lower()
-    feat = work / (f"{subset.lower()}-features" + ("" if params == "default" else f"-{params}"))
+    feat = work / (f"{subset.lower()}-features" + ("" if params == "default" else f"-{params}")
+                   + ("" if adapted is None else f"-adapted-{file_sha(adapted)[:8]}"))
     if not raw.exists():
         hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--out",
                str(raw), "--overwrite")
     if not feat.exists():  # (a calibration cut short resumes: run it again by hand)
         t0 = time.perf_counter()
-        hyprog("calibrate", str(raw), "--out", str(feat), "--params", params)
+        extra = [] if adapted is None else ["--model-effects", str(adapted)]
+        hyprog("calibrate", str(raw), "--out", str(feat), "--params", params, *extra)
         print(f"{subset}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return feat
+
+
+def file_sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def test_files(data_dir: Path, subset: str) -> tuple[Path, Path] | None:
@@ -169,6 +176,9 @@ def main(argv=None) -> int:
                     help="the health parameters calibrated for the hybrid inputs (hyprog "
                     "calibrate --params): 'default' or 'all' (those found unobservable in every "
                     "unit are left out, prognostics.features.unobservable_columns)")
+    ap.add_argument("--model-effects", type=Path, default=None,
+                    help="an adapted model (hyprog adapt) for the calibration of the hybrid "
+                    "inputs (a separate features folder; runs labelled 'adapted')")
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--fold-seed", type=int, default=0)
@@ -205,7 +215,7 @@ def main(argv=None) -> int:
                      for r in done.values() if r["subset"] == subset
                      and (r["kind"] == "floors" or r["model"] in args.models.split(","))]
             continue
-        feat = prepare_subset(args.data_dir, args.work, subset, args.params)
+        feat = prepare_subset(args.data_dir, args.work, subset, args.params, args.model_effects)
         df, meta = read_dataset(feat)
         units = sorted(df["unit"].unique().tolist())
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
@@ -237,6 +247,9 @@ def main(argv=None) -> int:
                         if args.params != "default" and name != "data-driven":
                             body["params"] = args.params  # (data-driven reads no estimate)
                             label = f"{name} --params {args.params}"
+                        if args.model_effects is not None and name != "data-driven":
+                            body["model_effects"] = file_sha(args.model_effects)
+                            label = f"{label}, adapted"
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})
