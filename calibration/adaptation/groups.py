@@ -38,6 +38,8 @@ from engine_model.physics.effect_library import COMPONENT_MODS
 from engine_model.physics.effects import parse_effect_spec
 from engine_model.validation import InputError
 
+#: The levels: always fitted (:mod:`.selection`), not selected.
+LEVEL_GROUP = "design_scaling"
 #: The steady candidates, in the order they are carried.
 STEADY_GROUPS = ("design_scaling", "map_scaling", *STEADY_DEFAULT)
 SENSOR_GROUP = "sensor_gain"
