@@ -76,8 +76,9 @@ def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "defau
                str(raw), "--overwrite")
     if not feat.exists():  # (a calibration cut short resumes: run it again by hand)
         t0 = time.perf_counter()
-        extra = [] if adapted is None else ["--model-effects", str(adapted)]
-        hyprog("calibrate", str(raw), "--out", str(feat), "--params", params, *extra)
+        extra = [] if params == "default" else ["--params", params]
+        extra += [] if adapted is None else ["--model-effects", str(adapted)]
+        hyprog("calibrate", str(raw), "--out", str(feat), *extra)
         print(f"{subset}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return feat
 
