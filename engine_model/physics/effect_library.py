@@ -243,13 +243,7 @@ class MapScaling(Effect):
 
     def __init__(self, **values):
         super().__init__(**values)
-        comp = self.opts.get("component")
-        if comp is None:
-            raise EffectSpecError("effect map_scaling: option 'component' is required (e.g. "
-                                  "map_scaling:component=HPC,eff_1=0.05)")
-        if comp not in COMPONENT_MODS:
-            raise EffectSpecError(f"effect map_scaling: unknown component {comp!r}; one of "
-                                  f"{', '.join(COMPONENT_MODS)}")
+        comp = _component_option(self, "eff_1=0.05")
         self.component = comp
         self.name = f"map_scaling_{comp}"
         self.moves = self.MOVES[comp]
@@ -299,13 +293,7 @@ class DesignScaling(Effect):
 
     def __init__(self, **values):
         super().__init__(**values)
-        comp = self.opts.get("component")
-        if comp is None:
-            raise EffectSpecError("effect design_scaling: option 'component' is required "
-                                  "(e.g. design_scaling:component=HPC,eff=-0.01)")
-        if comp not in COMPONENT_MODS:
-            raise EffectSpecError(f"effect design_scaling: unknown component {comp!r}; one "
-                                  f"of {', '.join(COMPONENT_MODS)}")
+        comp = _component_option(self, "eff=-0.01")
         self.component = comp
         self.name = f"design_scaling_{comp}"
         self.moves = self.MOVES[comp]
@@ -318,6 +306,19 @@ class DesignScaling(Effect):
         if hook == f"{self.component}_flow_mod":
             return value + p["flow"]
         return value
+
+
+def _component_option(effect: Effect, example: str) -> str:
+    """The effect's ``component`` option, checked (``example``: parameters for the message)."""
+    name = effect.registry_name
+    comp = effect.opts.get("component")
+    if comp is None:
+        raise EffectSpecError(f"effect {name}: option 'component' is required (e.g. "
+                              f"{name}:component=HPC,{example})")
+    if comp not in COMPONENT_MODS:
+        raise EffectSpecError(f"effect {name}: unknown component {comp!r}; one of "
+                              f"{', '.join(COMPONENT_MODS)}")
+    return comp
 
 
 def _channel_option(effect: Effect) -> str:
