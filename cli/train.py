@@ -17,9 +17,10 @@ from cli.common import (
     user_errors,
 )
 
-INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta), groups joined "
-               "by '+' (w, xs, xs_hat, xv, xv_hat, theta_hat, theta), explicit columns "
-               "(alt,Mach,...), or a set plus columns (hybrid+Ps30,phi).")
+INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
+               "trend also physics, hybrid-health), groups joined by '+' (w, xs, xs_hat, xv, "
+               "xv_hat, theta_hat, theta; health, theta_rel, health_true for tcn and trend), "
+               "explicit columns (alt,Mach,...), or a set plus columns (hybrid+Ps30,phi).")
 
 
 def train(
@@ -27,15 +28,17 @@ def train(
                                              "calibrate, or any table with its columns).")],
     out: Annotated[Path, typer.Option("--out", help="Model directory to write.")],
     model: Annotated[str, typer.Option(
-        "--model", help="fnn or cnn (the paper's), or dcnn (Li, Ding & Sun 2018's deeper CNN "
-        "with dropout; window 30).")] = "cnn",
+        "--model", help="fnn or cnn (the paper's), dcnn (Li, Ding & Sun 2018's deeper CNN "
+        "with dropout; window 30), or the flight models: tcn (a temporal CNN over the last "
+        "20 flights' means and health coordinates) and trend (the same, learning a correction "
+        "to the physics trend of the health index).")] = "cnn",
     inputs: Annotated[str, typer.Option("--inputs", help=INPUTS_HELP)] = "hybrid",
     units: Annotated[str | None, typer.Option(
         "--units",
         help="Development units to train on (default: the metadata's dev_units).")] = None,
     window: Annotated[int | None, typer.Option(
-        "--window", help="Window length (default 50 CNN, 30 DCNN); the FNN takes one time "
-        "step.")] = None,
+        "--window", help="Window length (default 50 CNN, 30 DCNN, 20 flights for tcn and "
+        "trend); the FNN takes one time step.")] = None,
     stride: Annotated[int, typer.Option("--stride", help="Window step.")] = 1,
     max_rul: Annotated[float | None, typer.Option(
         "--max-rul", help="Cap the RUL target (piecewise linear; default: no cap).")] = None,
@@ -64,12 +67,11 @@ def train(
         "--keep-constant", help="Keep input columns that are constant over the training rows "
         "(dropped by default).")] = False,
     validation: Annotated[str, typer.Option(
-        "--validation", help="auto (whole units when the table has one sample per cycle, "
-        "else 10 % of the flights), flights or units.")] = "auto",
+        "--validation", help="auto (10 % of the training units, whole, when there are at "
+        "least two; else 10 % of the flights), flights or units.")] = "auto",
     val_units: Annotated[str | None, typer.Option(
         "--val-units", help="Validate on these whole units, or 'seed': 10 % of the training "
-        "units drawn by the seed (what --validation auto does for one-sample-per-cycle "
-        "tables).")
+        "units drawn by the seed (what --validation auto does).")
     ] = None,
     conformal_units: Annotated[str | None, typer.Option(
         "--conformal-units", help="Development units held out to calibrate a conformal "

@@ -119,6 +119,21 @@ def unit_rul(cycles, hi, max_rul: float) -> np.ndarray:
     return out
 
 
+def trend_per_flight(flights: pd.DataFrame, max_rul: float, source: str = "table"
+                     ) -> np.ndarray:
+    """Step 3-4's RUL at every row of a flight table (:mod:`.flights`, rows ordered by unit
+    and cycle) from its ``HI_hat`` column, each unit on its own."""
+    if "HI_hat" not in flights.columns:
+        raise InputError(f"{source}: the physics trend needs the health index of θ̂ (a table "
+                         "with <q>_hat columns: run hyprog calibrate first)")
+    out = np.empty(len(flights))
+    cycle = flights["cycle"].to_numpy(float)
+    hi = flights["HI_hat"].to_numpy(float)
+    for idx in flights.groupby("unit", sort=False).indices.values():
+        out[idx] = unit_rul(cycle[idx], hi[idx], max_rul)
+    return out
+
+
 def baseline_per_cycle(df: pd.DataFrame, hi_fn: Callable[[np.ndarray], np.ndarray],
                        max_rul: float, units: Sequence[int] | None = None) -> pd.DataFrame:
     """Per (unit, cycle): θ̂ (10 columns), ``HI``, ``RUL_pred`` and true ``RUL`` when present.

@@ -12,6 +12,10 @@ calibrated interval. The calibrated interval is the split-conformal one (:mod:`.
 around ``ŷ``, present when the model was trained with conformal units:
 ``RUL_lower = max(ŷ - q̂, 0)``, ``RUL_upper = ŷ + q̂``.
 
+A flight model (``tcn``, ``trend``) predicts once per flight, at its end, from the table's
+flight table (:mod:`.flights`); on a sample table every sample of the flight carries that
+prediction.
+
 Prediction on a table uses the model's recorded columns (a missing one is an error naming
 it), its scaler, and windows over each unit as a whole (:mod:`.windows`): a sample gets a
 prediction when a full window ends at it; a unit shorter than the window is left-padded with
@@ -37,8 +41,10 @@ from torch import nn
 
 from engine_model.validation import InputError
 
+from .baseline import trend_per_flight
 from .conformal import SplitConformal
 from .features import TARGET, check_table, sort_table
+from .flights import one_per_cycle, to_samples
 from .metrics import evaluate_predictions
 from .models import build_model
 from .scaling import Scaler
@@ -47,6 +53,7 @@ from .train_config import TrainConfig
 from .training import (
     Member,
     deterministic,
+    flight_frame,
     predict_windows,
     prepare,
     progress_bar,
@@ -98,16 +105,19 @@ class RulModel:
             df = df[df["unit"].isin([int(u) for u in units])]
         if len(df) == 0:
             raise InputError(f"{source}: no rows to predict")
-        missing = [c for c in self.columns if c not in df.columns]
+        frame = samples = sort_table(df)
+        cfg = self.config
+        if cfg.per_flight:
+            frame = flight_frame(samples, source)
+        missing = [c for c in self.columns if c not in frame.columns]
         if missing:
             raise InputError(f"{source}: missing input column(s) {', '.join(missing)} that the "
                              "model was trained on")
-        frame = sort_table(df)
         check_table(frame, self.columns, source, target=False)
         x = self.scaler.transform_frame(frame, source=source)
         unit = frame["unit"].to_numpy()
         a, b = segments(unit, np.zeros(len(unit), np.int8))
-        win = make_windows(x, a, b, self.window, 1)
+        win = make_windows(x, a, b, self.window, 1, pad_all=cfg.per_flight)
         dev = resolve_device(device)
         nets = self.networks(dev)
         total, done = len(win) * len(nets), [0]
@@ -120,15 +130,19 @@ class RulModel:
             preds = np.stack([predict_windows(net, win, dev,
                                               progress=None if progress is None else step)
                               for net in nets])
-        keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
+        keep = [c for c in ("unit", "cycle", "t", TARGET, "hs") if c in frame.columns]
         out = frame[keep].iloc[win.rows].reset_index(drop=True)
         mean = preds.mean(axis=0)
-        cap = self.config.max_rul
+        if cfg.model == "trend":
+            mean = mean + trend_per_flight(frame, cfg.trend_cap, source)[win.rows]
+        cap = cfg.max_rul
         out["RUL_pred"] = mean if cap is None else np.clip(mean, 0.0, cap)
         if len(preds) > 1:
             out["RUL_std"] = preds.std(axis=0, ddof=1)
         if self.conformal is not None:
             out["RUL_lower"], out["RUL_upper"] = self.conformal.interval(out["RUL_pred"])
+        if cfg.per_flight and not one_per_cycle(samples):
+            out = to_samples(out, samples, [c for c in out.columns if c.startswith("RUL_")])
         return out
 
     def evaluate(self, df: pd.DataFrame, units: Sequence[int], device: str = "cpu",
@@ -164,6 +178,8 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         with deterministic(device):
             preds = np.mean([predict_windows(net, conf, device)
                              for net in model.networks(device)], axis=0)
+        if prep.offset is not None:
+            preds = preds + prep.offset[conf.rows]
         if cfg.max_rul is not None:
             preds = np.clip(preds, 0.0, cfg.max_rul)  # as RulModel.predict reports it
         y_true = prep.frame[TARGET].to_numpy(np.float64)[conf.rows]

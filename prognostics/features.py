@@ -18,6 +18,13 @@ Groups (each resolves to the listed columns *that the table has*, in this order)
 ``cmapss``     the 21 C-MAPSS sensors as hyprog reads them  every measured channel of NASA's
                (``datasets.cmapss.CMAPSS_SENSORS``)         files, also those outside x_s
                                                             (epr, NRf, NRc, BPR, htBleed, ...)
+``health``     ``HI_hat`` and ``margin_{fan,lpc,hpc,egt}``  health coordinates of θ̂ at the
+               ``_hat``                                     reference condition (flight
+                                                            tables, :mod:`.flights`)
+``theta_rel``  ``<q>_hat_rel``, ``HI_hat_rel``              θ̂ and HI relative to the unit's
+                                                            early life (flight tables)
+``health_true`` ``HI``, ``margin_*``                        the same at the true θ
+                                                            (simulation)
 
 Named sets (the paper's, Sec. 4.2 and ablation III)
 ----------------------------------------------------
@@ -29,7 +36,13 @@ denoised        w + xs + xs_hat                              [w, x_s, x̂_s]
 virtual         w + xs + xs_hat + xv_hat                     [w, x_s, x̂_s, x̂_v]
 hybrid          w + xs + xs_hat + xv_hat + theta_hat         [w, x_s, x̂_s, x̂_v, θ̂], n = 50
 truth-theta     w + xs + xs_hat + xv_hat + theta             θ from the data instead of θ̂
+physics         health + theta_rel                           (issue 30: θ̂'s health
+                                                            coordinates only)
+hybrid-health   hybrid + health + theta_rel                  (issue 30)
 ==============  ===========================================  ===============================
+
+The health groups exist in flight tables (:func:`prognostics.flights.flight_table`, which the
+flight models ``tcn`` and ``trend`` build from a sample table themselves).
 
 A specification (``--inputs``) is terms joined by ``+``: a set name, a group name, or a
 comma-separated list of columns, e.g. ``hybrid``, ``w+xs+xs_hat``, ``alt,Mach,TRA,T2,T24``,
@@ -60,7 +73,11 @@ from engine_model.validation import InputError
 KEYS = ("unit", "cycle")
 TARGET = "RUL"
 
-GROUPS = ("w", "xs", "xs_hat", "xv", "xv_hat", "theta_hat", "theta", "cmapss")
+GROUPS = ("w", "xs", "xs_hat", "xv", "xv_hat", "theta_hat", "theta", "cmapss", "health",
+          "theta_rel", "health_true")
+#: health index and normalised margins (:mod:`.flights`), column stems
+HEALTH_STEMS = ("HI", "margin_fan", "margin_lpc", "margin_hpc", "margin_egt")
+HEALTH_GROUPS = ("health", "theta_rel", "health_true")
 
 INPUT_SETS: dict[str, tuple[str, ...]] = {
     "data-driven": ("w", "xs"),
@@ -68,6 +85,8 @@ INPUT_SETS: dict[str, tuple[str, ...]] = {
     "virtual": ("w", "xs", "xs_hat", "xv_hat"),
     "hybrid": ("w", "xs", "xs_hat", "xv_hat", "theta_hat"),
     "truth-theta": ("w", "xs", "xs_hat", "xv_hat", "theta"),
+    "physics": ("health", "theta_rel"),
+    "hybrid-health": ("w", "xs", "xs_hat", "xv_hat", "theta_hat", "health", "theta_rel"),
 }
 
 
@@ -98,6 +117,12 @@ def group_columns(group: str, columns: Sequence[str],
         cand = [q + "_hat" for q in THETA_NAMES]
     elif group == "cmapss":
         cand = list(CMAPSS_SENSORS)
+    elif group == "health":
+        cand = [h + "_hat" for h in HEALTH_STEMS]
+    elif group == "health_true":
+        cand = list(HEALTH_STEMS)
+    elif group == "theta_rel":
+        cand = [q + "_hat_rel" for q in THETA_NAMES if q + "_hat" in have] + ["HI_hat_rel"]
     elif group == "theta":
         estimated = [q for q in THETA_NAMES if q + "_hat" in have]
         cand = estimated or list(THETA_NAMES)
@@ -122,7 +147,9 @@ def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table",
             for g in groups:
                 cols = group_columns(g, columns, unobservable)
                 if not cols:
-                    hint = " (run hyprog calibrate first)" if g.endswith("_hat") else ""
+                    hint = " (run hyprog calibrate first)" if g.endswith("_hat") else \
+                        " (computed in flight tables: the models tcn and trend)" \
+                        if g in HEALTH_GROUPS else ""
                     raise InputError(f"{source}: inputs {term!r} need the {g} columns, and the "
                                      f"table has none{hint}")
                 out += cols

@@ -28,6 +28,12 @@ convention): ``Δ = y - ŷ``, **true minus predicted**.
 - Interval coverage: the fraction of samples with ``lower <= y <= upper``; width: mean
   ``upper - lower``.
 
+Phases (issue 30): the same metrics over the samples **before onset** (``hs == 1``, the
+simulator's healthy state: degradation is normal wear only), **after onset** (``hs == 0``)
+and near the end, **RUL <= 30** cycles. Before onset θ says little about the end of life, so
+an overall figure mixes a part no predictor can do well with the part that matters; the
+phases keep them apart. The onset phases need an ``hs`` column in the prediction frame.
+
 Protocols
 ---------
 ``samples``: every predicted sample of the test units (the paper's, Sec. 4.5).
@@ -48,6 +54,7 @@ from engine_model.validation import InputError
 LATE_A = 10.0
 EARLY_A = 13.0
 HORIZON_TOL = 5.0
+END_PHASE_RUL = 30.0
 
 
 def rmse(y_true, y_pred) -> float:
@@ -126,19 +133,34 @@ def _sample_metrics(df: pd.DataFrame) -> dict:
     return out
 
 
+def phase_metrics(pred: pd.DataFrame) -> dict:
+    """``{phase: {"n", "rmse", "score"}}`` for ``before onset``, ``after onset`` (with an
+    ``hs`` column) and ``RUL <= 30`` (module docstring); a phase without samples is left
+    out."""
+    masks = {}
+    if "hs" in pred.columns:
+        hs = pred["hs"].to_numpy()
+        masks["before onset"] = hs == 1
+        masks["after onset"] = hs == 0
+    masks[f"RUL <= {END_PHASE_RUL:g}"] = pred["RUL"].to_numpy(float) <= END_PHASE_RUL
+    return {name: _sample_metrics(pred[m]) for name, m in masks.items() if m.any()}
+
+
 def evaluate_predictions(pred: pd.DataFrame) -> dict:
     """Both protocols, per unit and overall, and the prediction horizon per unit.
 
-    Returns ``{"samples": {"overall": m, "units": {u: m}}, "last": {"overall": m, "units":
-    {u: {"cycle", "RUL", "RUL_pred", "delta"}}}, "horizon": {"units": {u: h}, "mean": h}}``
-    where ``m`` holds ``n``, ``rmse``, ``score`` (and ``coverage``, ``width`` with an interval)
-    and ``delta = RUL - RUL_pred`` (the module's ``Δ``).
+    Returns ``{"samples": {"overall": m, "units": {u: m}, "phases": {phase: m}}, "last":
+    {"overall": m, "units": {u: {"cycle", "RUL", "RUL_pred", "delta"}}}, "horizon":
+    {"units": {u: h}, "mean": h}}`` (phases: :func:`phase_metrics`) where ``m`` holds
+    ``n``, ``rmse``, ``score`` (and ``coverage``, ``width`` with an interval) and
+    ``delta = RUL - RUL_pred`` (the module's ``Δ``).
     """
     check_prediction_frame(pred)
     if len(pred) == 0:
         raise InputError("predictions: no predicted samples to evaluate")
     samples = {"overall": _sample_metrics(pred),
-               "units": {int(u): _sample_metrics(g) for u, g in pred.groupby("unit")}}
+               "units": {int(u): _sample_metrics(g) for u, g in pred.groupby("unit")},
+               "phases": phase_metrics(pred)}
     pc = per_cycle(pred)
     last = pc.groupby("unit").tail(1)
     last_units = {}

@@ -30,6 +30,17 @@ capped at 125 cycles; on FD001's test units it scored RMSE 12.61 (their Table 4)
     (10 n + 1) 10 + 3 (100 + 1) 10 + (30 + 1) + (L + 1) 100 + 101
         = 7,672 for n = 14, L = 30
 
+TCN (issue 30; the flight models ``tcn`` and ``trend``): a temporal convolutional network
+over the last ``L`` flights of a flight table (:mod:`.flights`; Bai, Kolter & Koltun, "An
+empirical evaluation of generic convolutional and recurrent networks for sequence modeling",
+arXiv:1803.01271, 2018): residual blocks of one causal convolution each (kernel 3, dilations
+1, 2, 4, 8: a receptive field of 31 flights), ReLU and dropout 0.2, a 1x1 convolution on the
+skip path where the width changes; the last flight's features -> linear output. Causal: the
+output at flight ``c`` reads flights ``c - 30 .. c`` only. Small on purpose (32 channels):
+a fleet has hundreds of flights, not millions of samples. Parameters::
+
+    (3 n + 1) 32 + (n + 1) 32 + 3 (3 x 32 + 1) 32 + 33 = 128 n + 9,409  (9,665 for n = 2)
+
 The paper states "24k trainable parameters" for its CNN, which its own description cannot
 give (the count above has no free choice left); we build the description and report the
 count (:func:`parameter_count`).
@@ -47,7 +58,7 @@ from torch import nn
 
 from engine_model.validation import InputError
 
-from .train_config import MODEL_KINDS
+from .train_config import FLIGHT_MODELS, MODEL_KINDS
 
 FNN_HIDDEN = (200, 200, 200, 50)
 CNN_CHANNELS = (10, 10, 1)
@@ -60,6 +71,11 @@ DCNN_KERNEL = 10
 DCNN_LAST_KERNEL = 3
 DCNN_DENSE = 100
 DCNN_DROPOUT = 0.5
+
+TCN_CHANNELS = 32
+TCN_KERNEL = 3
+TCN_DILATIONS = (1, 2, 4, 8)
+TCN_DROPOUT = 0.2
 
 
 class FNN(nn.Module):
@@ -144,9 +160,44 @@ class DCNN(nn.Module):
         return self.net(x).squeeze(-1)
 
 
+class CausalBlock(nn.Module):
+    """One residual block of the TCN: ``x + dropout(relu(conv_d(x)))`` with the convolution
+    padded on the left only (output ``i`` reads inputs ``i - (k - 1) d .. i``) and a 1x1
+    convolution on the skip path when the width changes."""
+
+    def __init__(self, c_in: int, c_out: int, kernel: int, dilation: int, dropout: float):
+        super().__init__()
+        self.pad = (kernel - 1) * dilation
+        self.conv = nn.Conv1d(c_in, c_out, kernel, dilation=dilation)
+        self.skip = nn.Conv1d(c_in, c_out, 1) if c_in != c_out else nn.Identity()
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, c_in, L) -> (B, c_out, L)
+        y = self.drop(torch.relu(self.conv(F.pad(x, (self.pad, 0)))))
+        return self.skip(x) + y
+
+
+class TCN(nn.Module):
+    """Temporal CNN over flights (module docstring): causal residual blocks, last step."""
+
+    def __init__(self, n_inputs: int, channels: int = TCN_CHANNELS, kernel: int = TCN_KERNEL,
+                 dilations=TCN_DILATIONS, dropout: float = TCN_DROPOUT):
+        super().__init__()
+        blocks, c_in = [], n_inputs
+        for d in dilations:
+            blocks.append(CausalBlock(c_in, channels, kernel, d, dropout))
+            c_in = channels
+        self.blocks = nn.Sequential(*blocks)
+        self.out = nn.Linear(channels, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, n, L) -> (B,)
+        return self.out(self.blocks(x)[:, :, -1]).squeeze(-1)
+
+
 def build_model(kind: str, n_inputs: int, window: int, seed: int | None = None) -> nn.Module:
-    """A network of ``kind`` (``fnn``, ``cnn`` or ``dcnn``); Xavier-initialised from ``seed``
-    when given (otherwise left for :meth:`load_state_dict`)."""
+    """A network of ``kind`` (``fnn``, ``cnn``, ``dcnn``, or the flight models ``tcn`` and
+    ``trend``, both a :class:`TCN`); Xavier-initialised from ``seed`` when given (otherwise
+    left for :meth:`load_state_dict`)."""
     if kind not in MODEL_KINDS:
         raise InputError(f"unknown model {kind!r}; one of {', '.join(MODEL_KINDS)}")
     if n_inputs < 1:
@@ -159,7 +210,10 @@ def build_model(kind: str, n_inputs: int, window: int, seed: int | None = None) 
     else:
         if window < 1:
             raise InputError(f"window must be >= 1, got {window}")
-        model = CNN1D(n_inputs, window) if kind == "cnn" else DCNN(n_inputs, window)
+        if kind in FLIGHT_MODELS:
+            model = TCN(n_inputs)
+        else:
+            model = CNN1D(n_inputs, window) if kind == "cnn" else DCNN(n_inputs, window)
     if seed is not None:
         xavier_init(model, seed)
     return model

@@ -15,10 +15,12 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
    (:mod:`.scaling`); with ``drop_constant``, input columns constant over those rows are
    dropped, and so are the operating settings when those rows fly a single operating
    condition (:func:`training_conditions`) (:attr:`Prepared.dropped`);
-3. windows inside each unit-and-role segment (:mod:`.windows`), target ``min(RUL, max_rul)``
-   at the window's last row (``max_rul`` None: no cap, the paper's setting); the size rules
-   of :mod:`.train_config` fill in the batch size, epochs and patience from the number of
-   training windows;
+3. windows inside each unit-and-role segment (:mod:`.windows`; the flight models of
+   :mod:`.train_config` read the flight table of the rows, :func:`flight_frame`, with every
+   flight ending a window), target ``min(RUL, max_rul)`` (minus the physics trend for the
+   ``trend`` model, :func:`.baseline.trend_per_flight`) at the window's last row
+   (``max_rul`` None: no cap, the paper's setting); the size rules of :mod:`.train_config`
+   fill in the batch size, epochs and patience from the number of training windows;
 4. per seed: initialise, train (learning rate held, or cut tenfold on a validation plateau),
    early-stop, restore the best epoch;
 5. with conformal units: the ensemble mean on their windows calibrates a split-conformal
@@ -49,9 +51,10 @@ import pandas as pd
 import torch
 from torch import nn
 
-from engine_model.channels import W_NAMES
+from engine_model.channels import THETA_NAMES, W_NAMES
 from engine_model.validation import InputError
 
+from .baseline import trend_per_flight
 from .features import TARGET, check_table, resolve_inputs, sort_table, unobservable_columns
 from .models import build_model, parameter_count
 from .scaling import CONDITION, Scaler, fit_scaler
@@ -95,6 +98,7 @@ class Prepared:
     dev_units: list[int]
     test_units: list[int]
     dropped: list[str] = field(default_factory=list)  # constant input columns left out
+    offset: np.ndarray | None = None  # the trend model's offset per row of ``frame``
 
 
 def resolve_device(name: str) -> torch.device:
@@ -125,6 +129,25 @@ def deterministic(device: torch.device) -> Iterator[None]:
         torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = cudnn
 
 
+def flight_frame(df: pd.DataFrame, source: str = "table") -> pd.DataFrame:
+    """The flight table of ``df`` (:func:`prognostics.flights.flight_table`), with the health
+    coordinates of the default engine model when ``df`` has ``<q>_hat`` columns."""
+    from .flights import flight_table
+
+    hi = None
+    if any(q + "_hat" in df.columns for q in THETA_NAMES):
+        from .baseline import engine_health_index
+
+        hi = engine_health_index()
+    return flight_table(df, hi, source=source)
+
+
+def development_life(frame: pd.DataFrame) -> float:
+    """The longest life among the units of ``frame``: last cycle + its RUL."""
+    last = frame.groupby("unit", sort=False)[["cycle", TARGET]].last()
+    return float((last["cycle"] + last[TARGET]).max())
+
+
 def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
             source: str = "table") -> Prepared:
     """Steps 1-3 of the module docstring."""
@@ -133,14 +156,17 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         raise InputError(f"{source}: no {TARGET} column to train on")
     present = np.unique(df["unit"].to_numpy()).tolist()
     dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
-    columns = resolve_inputs(cfg.inputs, list(df.columns), source, unobservable_columns(df))
     every_unit = set(present) <= set(dev)  # no copy of the table when it is all development
     frame = sort_table(df if every_unit else df[df["unit"].isin(dev)])
+    if cfg.per_flight:
+        frame = flight_frame(frame, source)
+    columns = resolve_inputs(cfg.inputs, list(frame.columns), source,
+                             unobservable_columns(frame))
     check_table(frame, columns, source)
     unit = frame["unit"].to_numpy()
     cycle = frame["cycle"].to_numpy()
-    one_per_cycle = bool(np.all((unit[1:] != unit[:-1]) | (cycle[1:] != cycle[:-1])))
-    cfg = replace(cfg, validation=cfg.validation_for(one_per_cycle))
+    n_fit = len(set(dev) - set(cfg.conformal_units))
+    cfg = replace(cfg, validation=cfg.validation_for(n_fit))
     roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,
                          val_fraction=cfg.val_fraction, validation=cfg.validation,
                          val_units=cfg.val_units, conformal_units=cfg.conformal_units,
@@ -164,17 +190,25 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     y = frame[TARGET].to_numpy(np.float64)
     if cfg.max_rul is not None:
         y = np.minimum(y, cfg.max_rul)
+    offset = None
+    if cfg.model == "trend":
+        if cfg.trend_cap is None:
+            cfg = replace(cfg, trend_cap=development_life(frame[roles == TRAIN]))
+        offset = trend_per_flight(frame, cfg.trend_cap, source)
+        y = y - offset
     a, b = segments(unit, roles)
     seg_role = roles[a]
     windows = {}
     for role in (TRAIN, VALIDATION, CONFORMAL):
         pick = seg_role == role
         if pick.any():
-            windows[role] = make_windows(x, a[pick], b[pick], cfg.window, cfg.stride, y)
+            windows[role] = make_windows(x, a[pick], b[pick], cfg.window, cfg.stride, y,
+                                         pad_all=cfg.per_flight)
     train = windows.get(TRAIN)
-    cfg = cfg.sized(0 if train is None else len(train), one_per_cycle)
+    cfg = cfg.sized(0 if train is None else len(train), n_fit)
     keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
-    return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test, dropped)
+    return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test, dropped,
+                    offset)
 
 
 def training_conditions(frame: pd.DataFrame, rows: np.ndarray) -> tuple[int, ...]:

@@ -23,6 +23,10 @@ its **last** row (the prediction is made with the data seen so far).
   batch is ``base[starts]`` with shape ``(B, k)``.
 - Samples before the first full window of a segment (its first ``L - 1`` rows) have no
   prediction and are left out of the metrics, as in the paper's windowed test set.
+- **Every row** (``pad_all=True``, the flight-level models of :mod:`.flights`): every segment
+  is left-padded with ``L - 1`` copies of its first row, so that each row ends a window and
+  gets a prediction (a window over flights is long compared with a unit's life: dropping its
+  first ``L - 1`` flights would drop a third of a unit).
 """
 
 from __future__ import annotations
@@ -79,9 +83,11 @@ class Windows:
 
 
 def make_windows(x: np.ndarray, seg_starts: np.ndarray, seg_ends: np.ndarray, length: int,
-                 stride: int = 1, target: np.ndarray | None = None) -> Windows:
+                 stride: int = 1, target: np.ndarray | None = None,
+                 pad_all: bool = False) -> Windows:
     """Windows of ``length`` rows with step ``stride`` inside each segment
-    ``[seg_starts[i], seg_ends[i])`` of the scaled rows ``x`` (N, k) (module docstring).
+    ``[seg_starts[i], seg_ends[i])`` of the scaled rows ``x`` (N, k) (module docstring;
+    ``pad_all``: every segment left-padded so that every row ends a window).
 
     Without short segments, ``base`` shares memory with ``x`` (pass a C-contiguous float32
     array, as :meth:`MinMaxScaler.transform` returns). Vectorised: no Python loop per window
@@ -95,7 +101,7 @@ def make_windows(x: np.ndarray, seg_starts: np.ndarray, seg_ends: np.ndarray, le
     b = np.asarray(seg_ends, dtype=np.int64)
     if np.any(b <= a) or np.any(a < 0) or np.any(b > n_rows):
         raise InputError("windows: empty or out-of-range segment")
-    pad = np.maximum(length - (b - a), 0)
+    pad = np.full(len(a), length - 1, np.int64) if pad_all else np.maximum(length - (b - a), 0)
     if pad.any():
         repeats = np.ones(n_rows, dtype=np.int64)
         np.add.at(repeats, a, pad)

@@ -138,7 +138,7 @@ def test_scaler_sees_the_training_rows_only(make_features):
     dev = meta["dev_units"]
     frame = df[df.unit.isin(dev)].reset_index(drop=True)
     roles = assign_roles(frame.unit.to_numpy(), frame.cycle.to_numpy(), dev, seed=cfg.seed,
-                         conformal_units=(4,))
+                         conformal_units=(4,), validation="units")  # the default (issue 30)
     val_row = frame.index[roles == VALIDATION][0]
     val_key = frame.loc[val_row, ["unit", "cycle", "t"]]
     at = (df.unit == val_key.unit) & (df.cycle == val_key.cycle) & (df.t == val_key.t)

@@ -35,28 +35,29 @@ pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def test_size_rules_give_the_papers_values_at_the_papers_size():
-    c = TrainConfig(model="cnn").sized(5_000_000, one_per_cycle=False)
+    c = TrainConfig(model="cnn").sized(5_000_000, n_units=1)
     assert (c.batch_size, c.epochs, c.patience, c.validation) == \
         (PAPER_BATCH, DEFAULT_EPOCHS["cnn"], PAPER_PATIENCE, "flights")
+    assert TrainConfig(model="cnn").sized(5_000_000, n_units=6).validation == "units"
 
 
 def test_size_rules_on_a_cmapss_sized_table():
     n = 14_000  # FD001: about 17,700 windows of 30, 10 % of the units validate
-    c = TrainConfig(model="dcnn").sized(n, one_per_cycle=True)
+    c = TrainConfig(model="dcnn").sized(n, n_units=80)
     # the largest power of two with at least 16 batches an epoch: 14,000 / 16 = 875 -> 512,
     # Li et al.'s batch
     assert c.batch_size == 512
     steps = -(-n // 512)  # 28 an epoch
     assert c.epochs == max(DEFAULT_EPOCHS["dcnn"], -(-MIN_STEPS // steps)) == 250
     assert c.patience == -(-PATIENCE_STEPS // steps) == 72
-    assert c.validation == "units"  # one sample per cycle: whole units
-    small = TrainConfig(model="cnn").sized(600, one_per_cycle=True)
+    assert c.validation == "units"  # whole held-out units
+    small = TrainConfig(model="cnn").sized(600, n_units=80)
     assert small.batch_size == 32 and small.epochs == -(-MIN_STEPS // -(-600 // 32))
 
 
 def test_given_values_are_kept_and_bad_ones_refused():
     c = TrainConfig(batch_size=77, epochs=3, patience=2, validation="flights")
-    s = c.sized(14_000, one_per_cycle=True)
+    s = c.sized(14_000, n_units=80)
     assert (s.batch_size, s.epochs, s.patience, s.validation) == (77, 3, 2, "flights")
     for bad in ({"schedule": "cosine"}, {"normalise": "zscore"}, {"validation": "cycles"},
                 {"batch_size": 0}, {"patience": 0}):
@@ -68,7 +69,7 @@ def test_the_trained_model_records_the_values_the_rules_chose(make_features):
     df, meta = make_features()
     m = fit(df, meta, TrainConfig(model="fnn", inputs="data-driven", epochs=2, device="cpu"))
     assert m.config.batch_size >= 32 and m.config.patience >= PAPER_PATIENCE
-    assert m.config.validation == "flights"  # several samples per cycle
+    assert m.config.validation == "units"  # whole held-out units by default (issue 30)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -51,11 +51,17 @@ class HealthIndex:
         self.t48_lim = self.new["T48"] + EGT_MARGIN_DEGR
 
     def components(self, theta) -> dict[str, np.ndarray]:
+        """The normalised margins ``SmFan``, ``SmLPC``, ``SmHPC`` and ``EGT`` (1 new, 0 at
+        the limit) for each row of ``theta``."""
         m = reference_margins(self.model, theta)
         out = {k: (m[k] - lim) / (self.new[k] - lim) for k, lim in LIMITS.items()}
         out["EGT"] = (self.t48_lim - m["T48"]) / EGT_MARGIN_DEGR
         return out
 
+    @staticmethod
+    def of_components(components: dict[str, np.ndarray]) -> np.ndarray:
+        """HI, the minimum of the normalised margins (module docstring)."""
+        return np.min(np.vstack(list(components.values())), axis=0)
+
     def __call__(self, theta) -> np.ndarray:
-        c = self.components(theta)
-        return np.min(np.vstack(list(c.values())), axis=0)
+        return self.of_components(self.components(theta))

@@ -1,0 +1,272 @@
+"""Physics features that generalise (issue 30), on the committed ``ds02`` fleet.
+
+    OMP_NUM_THREADS=2 python benchmarks/health_features.py \\
+        [--features out/ds02-features] [--results benchmarks/results/health]
+
+The fleet and its calibration are the paper experiment's (``benchmarks/paper_experiment.py``,
+steps 1-2: ``hyprog simulate --preset ds02 --rate 0.1 --seed 0``, ``hyprog calibrate --method
+ukf``); they are built here when ``--features`` does not exist.
+
+1. **Flight table** of the calibrated samples (:func:`prognostics.flights.flight_table`: one
+   row per flight, its means, the health coordinates of θ̂, θ̂ relative to the unit's early
+   life).
+2. **Choice on development units only.** Three folds of whole development units
+   (:func:`prognostics.cross_validation.unit_folds`, fold seed 0); every candidate (model,
+   inputs, window: :data:`CANDIDATES`) is trained on the other development units (early
+   stopping on one whole unit of those, the library's default) from each of the seeds, and
+   the seeds' mean prediction is scored on the held-out units' samples. The floors
+   (:mod:`prognostics.floors`) are scored on the same folds. The candidate with the lowest
+   cross-validated RMSE among those that read θ̂ (not the true θ) is **the chosen hybrid**;
+   the data-driven reference is the flight model on ``data-driven`` inputs.
+3. **Test units, once per configuration.** Every candidate is trained on all development
+   units from each seed and evaluated once on the test units: RMSE over every sample (a
+   flight's prediction, issued at its end, carried by each of its samples), by phase (before
+   and after onset, RUL <= 30), at the last cycle, the prediction horizon, and test unit 15
+   after onset (the unit that mixes the two failure modes). The floors beside them.
+
+Every run is cached in ``out/health/runs.jsonl`` (keyed by the data's fingerprint, the stage,
+the units and the resolved configuration), so an interrupted benchmark resumes. The table goes
+to ``--results`` (``health.md``, ``runs.csv``, ``runs.jsonl.gz``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from run_cache import append_run, read_runs  # noqa: E402
+
+from engine_model.datasets.dispatch import read_dataset  # noqa: E402
+from engine_model.datasets.fingerprint import table_fingerprint  # noqa: E402
+from prognostics.cross_validation import unit_folds  # noqa: E402
+from prognostics.ensemble import fit  # noqa: E402
+from prognostics.flights import to_samples  # noqa: E402
+from prognostics.floors import FLOORS, floor_predictions  # noqa: E402
+from prognostics.metrics import evaluate_predictions  # noqa: E402
+from prognostics.train_config import TrainConfig  # noqa: E402
+from prognostics.training import flight_frame  # noqa: E402
+
+#: (model, inputs, window); "truth" inputs (true θ) are an ablation, never chosen
+CANDIDATES = (
+    ("tcn", "data-driven", 20),
+    ("tcn", "hybrid", 20),
+    ("tcn", "hybrid-health", 20),
+    ("tcn", "physics", 10),
+    ("tcn", "physics", 20),
+    ("tcn", "health", 20),
+    ("trend", "physics", 20),
+    ("trend", "health", 20),
+    ("tcn", "health_true", 20),
+)
+TRUTH_INPUTS = ("health_true",)
+FOLDS, FOLD_SEED = 3, 0
+UNIT_15 = 15
+
+
+def hyprog(*args: str) -> None:
+    cmd = [sys.executable, "-c", "from cli.main import app; app()", *args]
+    print(f"[{time.strftime('%H:%M:%S')}] hyprog {' '.join(args)}", flush=True)
+    subprocess.run(cmd, cwd=ROOT, check=True)
+
+
+def build_features(features: Path) -> None:
+    fleet = features.parent / "ds02"
+    if not fleet.exists():
+        hyprog("simulate", "--preset", "ds02", "--rate", "0.1", "--seed", "0", "--out",
+               str(fleet))
+    hyprog("calibrate", str(fleet), "--method", "ukf", "--jobs", "2", "--out", str(features))
+
+
+def key_of(body: dict) -> str:
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def scores(pred: pd.DataFrame) -> dict:
+    """RMSE overall and by phase, last cycle, horizon, unit 15 after onset."""
+    m = evaluate_predictions(pred)
+    out = {"rmse": m["samples"]["overall"]["rmse"], "score": m["samples"]["overall"]["score"],
+           "last_rmse": m["last"]["overall"]["rmse"], "horizon": m["horizon"]["mean"],
+           "horizon_units": m["horizon"]["units"],
+           "phases": {k: v["rmse"] for k, v in m["samples"]["phases"].items()}}
+    u15 = pred[(pred["unit"] == UNIT_15) & (pred["hs"] == 0)] if "hs" in pred.columns else []
+    if len(u15):
+        d = u15["RUL"].to_numpy(float) - u15["RUL_pred"].to_numpy(float)
+        out["unit15_after_onset"] = {"rmse": float(np.sqrt(np.mean(d * d))),
+                                     "mean_delta": float(d.mean())}
+    return out
+
+
+def train_predict(flights, meta, cfg, seeds, units, evaluate_units, samples) -> dict:
+    """Train one model per seed on ``units`` (all development units when None), predict the
+    flights of ``evaluate_units``; per-seed scores and the seeds' mean prediction's."""
+    t0 = time.perf_counter()
+    ev = flights[flights["unit"].isin(evaluate_units)]
+    preds, per_seed = [], []
+    for s in seeds:
+        c = replace(cfg, seed=int(s), units=None if units is None else tuple(units))
+        model = fit(flights, meta, c)
+        p = to_samples(model.predict(ev), samples)
+        preds.append(p["RUL_pred"].to_numpy())
+        per_seed.append({"seed": int(s), "best_epoch": model.members[0].best_epoch,
+                         **scores(p)})
+    ens = p.copy()
+    ens["RUL_pred"] = np.mean(preds, axis=0)
+    return {"per_seed": per_seed, "ensemble": scores(ens),
+            "seconds": time.perf_counter() - t0}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--features", type=Path, default=ROOT / "out" / "ds02-features")
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "health")
+    ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "health")
+    ap.add_argument("--cv-seeds", default="0,1,2")
+    ap.add_argument("--test-seeds", default="0,1,2,3,4")
+    ap.add_argument("--report", action="store_true", help="write the tables from the cache")
+    a = ap.parse_args(argv)
+    a.work.mkdir(parents=True, exist_ok=True)
+    cache = a.work / "runs.jsonl"
+    if not a.report:
+        if not a.features.exists():
+            build_features(a.features)
+        df, meta = read_dataset(a.features)
+        fp = table_fingerprint(df, meta)
+        flights = flight_frame(df)
+        dev, test = [int(u) for u in meta["dev_units"]], [int(u) for u in meta["test_units"]]
+        done = {r["key"]: r for r in read_runs(cache)}
+        folds = unit_folds(dev, FOLDS, FOLD_SEED)
+        cv_seeds = [int(s) for s in a.cv_seeds.split(",")]
+        test_seeds = [int(s) for s in a.test_seeds.split(",")]
+        stages = [("cv", k, f.train, f.held_out, cv_seeds) for k, f in enumerate(folds)]
+        stages.append(("test", 0, dev, test, test_seeds))
+        for stage, k, train_units, held, seeds in stages:
+            dev_fl = flights[flights["unit"].isin(train_units)]
+            held_fl = flights[flights["unit"].isin(held)]
+            samples = df[df["unit"].isin(held)]
+            body = {"data": fp, "stage": stage, "fold": k, "floors": list(FLOORS)}
+            key = key_of(body)
+            if key not in done:
+                rec = {"key": key, "kind": "floors", "stage": stage, "fold": k,
+                       "held": [int(u) for u in held],
+                       "floors": {n: scores(to_samples(p, samples))
+                                  for n, p in floor_predictions(dev_fl, held_fl).items()}}
+                append_run(cache, rec)
+                done[key] = rec
+            for model, inputs, window in CANDIDATES:
+                cfg = TrainConfig(model=model, inputs=inputs, window=window, device="cpu")
+                body = {"data": fp, "stage": stage, "fold": k, "units": list(train_units),
+                        "seeds": seeds, "config": cfg.to_dict()}
+                key = key_of(body)
+                if key in done:
+                    continue
+                units = None if stage == "test" else train_units
+                res = train_predict(flights, meta, cfg, seeds, units, held, samples)
+                rec = {"key": key, "kind": "model", "stage": stage, "fold": k,
+                       "held": [int(u) for u in held], "model": model, "inputs": inputs,
+                       "window": window, **res}
+                append_run(cache, rec)
+                done[key] = rec
+                print(f"[{time.strftime('%H:%M:%S')}] {stage} fold {k} {model} {inputs} "
+                      f"w{window}: RMSE {res['ensemble']['rmse']:.2f} "
+                      f"({res['seconds']:.0f} s)", flush=True)
+    report(read_runs(cache), a.results, cache)
+    return 0
+
+
+def _fmt(x, nd=2) -> str:
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
+
+
+def report(runs: list[dict], results: Path, cache: Path) -> None:
+    """The choice (CV) and the test table; Markdown, CSV and the cache to ``results``."""
+    cv = [r for r in runs if r["stage"] == "cv"]
+    test = [r for r in runs if r["stage"] == "test"]
+    rows = []
+    names = sorted({(r["model"], r["inputs"], r["window"]) for r in runs if r["kind"] == "model"},
+                   key=lambda t: [c[:3] for c in CANDIDATES].index(t)
+                   if t in CANDIDATES else 99)
+    for name in names:
+        model, inputs, window = name
+        folds = [r for r in cv if r["kind"] == "model" and
+                 (r["model"], r["inputs"], r["window"]) == name]
+        t = [r for r in test if r["kind"] == "model" and
+             (r["model"], r["inputs"], r["window"]) == name]
+        row = {"predictor": f"{model} {inputs} (window {window})", "truth": inputs in
+               TRUTH_INPUTS, "cv_folds": len(folds)}
+        if folds:
+            row["cv_rmse"] = float(np.mean([r["ensemble"]["rmse"] for r in folds]))
+        if t:
+            e, ps = t[0]["ensemble"], t[0]["per_seed"]
+            seed_rmse = [p["rmse"] for p in ps]
+            row.update(test_rmse_seeds=float(np.mean(seed_rmse)),
+                       test_rmse_seeds_std=float(np.std(seed_rmse, ddof=1)) if len(ps) > 1
+                       else 0.0, test_rmse=e["rmse"], last=e["last_rmse"], horizon=e["horizon"],
+                       **{f"phase {k}": v for k, v in e["phases"].items()},
+                       u15=e.get("unit15_after_onset", {}).get("rmse"),
+                       u15_bias=e.get("unit15_after_onset", {}).get("mean_delta"))
+        rows.append(row)
+    for name in FLOORS:
+        fcv = [r["floors"][name] for r in cv if r["kind"] == "floors"]
+        ft = [r["floors"][name] for r in test if r["kind"] == "floors"]
+        row = {"predictor": f"floor: {name}", "truth": False, "cv_folds": len(fcv)}
+        if fcv:
+            row["cv_rmse"] = float(np.mean([f["rmse"] for f in fcv]))
+        if ft:
+            e = ft[0]
+            row.update(test_rmse=e["rmse"], last=e["last_rmse"], horizon=e["horizon"],
+                       **{f"phase {k}": v for k, v in e["phases"].items()},
+                       u15=e.get("unit15_after_onset", {}).get("rmse"),
+                       u15_bias=e.get("unit15_after_onset", {}).get("mean_delta"))
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    eligible = table[~table["truth"] & ~table["predictor"].str.startswith("floor")
+                     & ~table["predictor"].str.contains("data-driven")
+                     & (table["cv_folds"] == FOLDS)]
+    chosen = eligible.loc[eligible["cv_rmse"].idxmin(), "predictor"] if len(eligible) else None
+    results.mkdir(parents=True, exist_ok=True)
+    table.to_csv(results / "runs.csv", index=False, float_format="%.4g")
+    lines = ["# Physics features on the ds02 fleet (issue 30)", "",
+             "`python benchmarks/health_features.py` (its docstring). CV: 3 folds of whole "
+             "development units, the seeds' mean prediction, RMSE over every held-out sample. "
+             "Test: trained on all development units, evaluated once on units 11, 14, 15; "
+             "'seeds' is the mean ± std of the single-seed models, the other columns are the "
+             "seeds' mean prediction.", "",
+             f"Chosen on CV (lowest CV RMSE among the hybrid candidates): **{chosen}**", "",
+             "| predictor | CV RMSE | test RMSE, seeds | test RMSE | before onset | after onset "
+             "| RUL <= 30 | last cycle | horizon | unit 15 after onset (bias) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        seeds = "-" if "test_rmse_seeds" not in r else \
+            f"{r['test_rmse_seeds']:.2f} ± {r['test_rmse_seeds_std']:.2f}"
+        mark = " (chosen)" if r["predictor"] == chosen else ""
+        truth = " (true θ)" if r["truth"] else ""
+        lines.append(
+            f"| {r['predictor']}{truth}{mark} | {_fmt(r.get('cv_rmse'))} | {seeds} | "
+            f"{_fmt(r.get('test_rmse'))} | {_fmt(r.get('phase before onset'))} | "
+            f"{_fmt(r.get('phase after onset'))} | {_fmt(r.get('phase RUL <= 30'))} | "
+            f"{_fmt(r.get('last'))} | {_fmt(r.get('horizon'), 1)} | "
+            f"{_fmt(r.get('u15'))} ({_fmt(r.get('u15_bias'))}) |")
+    (results / "health.md").write_text("\n".join(lines) + "\n")
+    if cache.exists():
+        import gzip
+
+        (results / "runs.jsonl.gz").write_bytes(gzip.compress(cache.read_bytes()))
+    print("\n".join(lines))
+    shutil.copy2(results / "health.md", cache.parent / "health.md")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,193 @@
+"""Issue 30: flight tables, health coordinates of θ̂, the flight models, floors and phases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from engine_model.channels import THETA_NAMES
+from engine_model.validation import InputError
+from prognostics.ensemble import fit
+from prognostics.flights import causal_reference, flight_table, to_samples
+from prognostics.floors import HiLookup, floor_predictions, unit_lives
+from prognostics.metrics import evaluate_predictions, phase_metrics
+from prognostics.splits import TRAIN, VALIDATION
+from prognostics.train_config import TrainConfig
+from prognostics.training import prepare
+from prognostics.windows import make_windows
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
+
+
+class LinearHI:
+    """A stand-in health index, linear in θ (no engine model): margins ``1 + a_k · θ``."""
+
+    A = {"SmFan": 0.0, "SmLPC": 0.0, "SmHPC": 5.0, "EGT": 20.0}
+
+    def components(self, theta):
+        th = np.atleast_2d(theta)
+        s = th.sum(axis=1)
+        return {k: 1.0 + a * s for k, a in self.A.items()}
+
+    @staticmethod
+    def of_components(c):
+        return np.min(np.vstack(list(c.values())), axis=0)
+
+
+def test_flight_table_means_labels_and_relative_theta(make_features):
+    df, _ = make_features()
+    ft = flight_table(df, LinearHI())
+    assert not ft.duplicated(["unit", "cycle"]).any()
+    g = df.groupby(["unit", "cycle"])
+    np.testing.assert_allclose(ft["T24"], g["T24"].mean().to_numpy())
+    np.testing.assert_array_equal(ft["RUL"], g["RUL"].last().to_numpy())
+    # HI from the flight's mean theta-hat, placed by name (others at 0)
+    th = sum(g[q + "_hat"].mean().to_numpy() for q in ("HPT_eff_mod", "LPT_eff_mod",
+                                                       "LPT_flow_mod"))
+    np.testing.assert_allclose(ft["HI_hat"], np.minimum(1.0, 1.0 + np.minimum(20 * th, 5 * th)))
+    np.testing.assert_allclose(ft["margin_hpc_hat"], 1.0 + 5.0 * th)
+    # relative to the mean of the unit's first 5 flights (expanding before that)
+    u1 = ft[ft.unit == 1]["HPT_eff_mod_hat"].to_numpy()
+    rel = ft[ft.unit == 1]["HPT_eff_mod_hat_rel"].to_numpy()
+    np.testing.assert_allclose(rel[:3], u1[:3] - np.cumsum(u1[:3]) / np.arange(1, 4))
+    np.testing.assert_allclose(rel[10], u1[10] - u1[:5].mean())
+    # the true theta gives the truth's coordinates; a flight table again is unchanged
+    assert "HI" in ft.columns and "HI_hat_rel" in ft.columns
+    again = flight_table(ft, LinearHI())
+    pd.testing.assert_frame_equal(again[ft.columns], ft)
+
+
+def test_flight_features_are_causal(make_features):
+    """A flight's row never depends on a later sample: altering every later flight, or
+    cutting them off, leaves the rows up to it unchanged."""
+    df, _ = make_features()
+    ft = flight_table(df, LinearHI())
+    later = (df.unit == 2) & (df.cycle > 7)
+    changed = df.copy()
+    num = [c for c in df.columns if c not in ("unit", "cycle", "t", "RUL")]
+    changed.loc[later, num] = changed.loc[later, num] * 3.0 + 1.0
+    for other in (changed, df[~later]):
+        ft2 = flight_table(other, LinearHI())
+        keep = (ft.unit != 2) | (ft.cycle <= 7)
+        pd.testing.assert_frame_equal(ft2[(ft2.unit != 2) | (ft2.cycle <= 7)]
+                                      .reset_index(drop=True),
+                                      ft[keep].reset_index(drop=True))
+    ref = causal_reference(np.array([1, 1, 1, 2, 2]), np.array([1.0, 3.0, 5.0, 2.0, 4.0]), 2)
+    np.testing.assert_allclose(ref, [1.0, 2.0, 2.0, 2.0, 3.0])
+
+
+def test_health_index_of_theta_hat_equals_the_simulators(model):
+    """At the true θ (θ̂ = θ), the flight table's HI is the simulator's health index of the
+    trajectory it drew (``degradation.simulate_health``), to 1e-6."""
+    from engine_model.physics.health_index import HealthIndex
+    from engine_model.simulator.degradation import simulate_health
+
+    hi = HealthIndex(model)
+    traj = simulate_health(model, "HPT+LPT", eol=(14, 14), t_s=(5, 5),
+                           rng=np.random.default_rng(3), hi_fn=hi)
+    rows = []
+    for c in range(1, traj.eol + 1):
+        for k in range(3):  # three samples a flight
+            r = {"unit": 1, "cycle": c, "t": 10.0 * k, "RUL": traj.eol - c}
+            r.update({q + "_hat": traj.theta[c - 1, j] for j, q in enumerate(THETA_NAMES)})
+            rows.append(r)
+    ft = flight_table(pd.DataFrame(rows), hi)
+    np.testing.assert_allclose(ft["HI_hat"], traj.hi, atol=1e-6)
+    assert abs(ft["HI_hat"].iloc[-1]) < 1e-6 and ft["HI_hat"].iloc[0] > 0.5
+    np.testing.assert_allclose(ft["margin_egt_hat"], traj.margins["EGT"], atol=1e-9)
+
+
+def test_validation_units_never_overlap_training_units(make_features):
+    df, meta = make_features(units=tuple(range(1, 13)), test_units=(11, 12))
+    for model in ("cnn", "tcn"):
+        prep = prepare(df, meta, TrainConfig(model=model, inputs="data-driven", seed=4,
+                                             window=3))
+        assert prep.config.validation == "units"
+        unit = prep.frame["unit"].to_numpy()
+        train, val = set(unit[prep.roles == TRAIN]), set(unit[prep.roles == VALIDATION])
+        assert val and train and not train & val
+        assert not (train | val) & {11, 12}
+
+
+def test_windows_padded_at_every_row():
+    x = np.arange(14, dtype=np.float32).reshape(7, 2)
+    w = make_windows(x, np.array([0, 3]), np.array([3, 7]), length=3, pad_all=True)
+    assert len(w) == 7 and list(w.rows) == list(range(7))
+    first = w.batch(np.array([0]))[0].numpy()  # row 0 with two copies of itself before it
+    np.testing.assert_array_equal(first, np.repeat(x[[0]].T, 3, axis=1))
+    fourth = w.batch(np.array([4]))[0].numpy()  # row 4 = second row of segment 2
+    np.testing.assert_array_equal(fourth, x[[3, 3, 4]].T)
+
+
+def _fake_hi(monkeypatch):
+    import prognostics.baseline as baseline
+
+    monkeypatch.setattr(baseline, "engine_health_index", lambda: LinearHI())
+
+
+@pytest.mark.parametrize("model", ["tcn", "trend"])
+def test_flight_models_train_predict_and_stay_causal(make_features, monkeypatch, tmp_path,
+                                                     model):
+    from prognostics.checkpoint import load_model, save_model
+
+    _fake_hi(monkeypatch)
+    df, meta = make_features()
+    cfg = TrainConfig(model=model, inputs="physics", window=6, epochs=4, device="cpu")
+    m = fit(df, meta, cfg)
+    assert m.config.per_flight and m.config.validation == "units"
+    if model == "trend":
+        lives = unit_lives(flight_table(df[df.unit.isin(meta["dev_units"])]))
+        assert m.config.trend_cap <= lives.max()
+    test = df[df.unit.isin(meta["test_units"])]
+    pred = m.predict(test)
+    assert len(pred) == len(test)  # every sample carries its flight's prediction
+    per_flight = pred.groupby(["unit", "cycle"])["RUL_pred"].nunique()
+    assert (per_flight == 1).all()
+    # causal: cutting off unit 5's flights after 9 leaves its first 9 predictions as they were
+    cut = m.predict(test[(test.unit != 5) | (test.cycle <= 9)])
+    a = pred[(pred.unit == 5) & (pred.cycle <= 9)]["RUL_pred"].to_numpy()
+    b = cut[cut.unit == 5]["RUL_pred"].to_numpy()
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    save_model(m, tmp_path / "m")
+    again = load_model(tmp_path / "m")
+    pd.testing.assert_frame_equal(again.predict(test), pred)
+
+
+def test_health_groups_need_a_flight_model(make_features):
+    df, meta = make_features()
+    with pytest.raises(InputError, match="flight tables"):
+        fit(df, meta, TrainConfig(model="fnn", inputs="physics", epochs=1))
+
+
+def test_floors_life_lookup_and_trend():
+    rows = []
+    for u, eol in ((1, 10), (2, 20), (3, 16)):
+        for c in range(1, eol + 1):
+            rows.append({"unit": u, "cycle": c, "RUL": eol - c, "HI_hat": (eol - c) / eol,
+                         "hs": int(c < 4)})
+    ft = pd.DataFrame(rows)
+    dev, ev = ft[ft.unit < 3], ft[ft.unit == 3]
+    np.testing.assert_array_equal(unit_lives(dev).to_numpy(), [10, 20])
+    f = floor_predictions(dev, ev)
+    np.testing.assert_allclose(f["life"]["RUL_pred"], np.maximum(15.0 - ev.cycle, 0.0))
+    look = HiLookup.fit(dev["HI_hat"], dev["RUL"])
+    assert np.all(np.diff(look.rul) >= 0) and np.all(np.diff(look.hi) > 0)
+    assert look(-1.0) == look.rul[0] and look(2.0) == look.rul[-1]
+    # a linear HI reaching 0 at the end: the trend predicts the life left once it has 2 flights
+    trend = f["physics-trend"]["RUL_pred"].to_numpy()
+    np.testing.assert_allclose(trend[2:], ev["RUL"].to_numpy()[2:], atol=1e-6)
+    with pytest.raises(InputError, match="unknown floor"):
+        floor_predictions(dev, ev, ["oracle"])
+
+
+def test_phase_metrics_split_before_and_after_onset():
+    pred = pd.DataFrame({"unit": 1, "cycle": [1, 2, 3, 4], "RUL": [40.0, 30.0, 20.0, 10.0],
+                         "RUL_pred": [44.0, 30.0, 23.0, 6.0], "hs": [1, 1, 0, 0]})
+    ph = phase_metrics(pred)
+    assert ph["before onset"]["rmse"] == pytest.approx(np.sqrt(8.0))
+    assert ph["after onset"]["rmse"] == pytest.approx(np.sqrt(12.5))
+    assert ph["RUL <= 30"]["n"] == 3
+    assert "phases" in evaluate_predictions(pred)["samples"]
+    assert to_samples(pred[["unit", "cycle", "RUL_pred"]].assign(RUL_pred=1.0),
+                      pred.drop(columns="RUL_pred"))["RUL_pred"].eq(1.0).all()
