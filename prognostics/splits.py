@@ -13,10 +13,12 @@ Roles of the rows of a feature table (one integer per row, :data:`TRAIN` ...):
     cycles (whole flights) drawn without replacement by a seeded generator; a unit with one
     cycle keeps it for training.
   * ``"units"``: whole development units, the ``val_units`` given, or
-    ``max(1, round(0.1 n_u))`` of the ``n_u`` units drawn by the seed. This is the mode for a
-    table with one sample per cycle (C-MAPSS): there a validation "flight" is one row, which
-    leaves one-row validation segments and cuts the training units into short runs (both
-    left-padded to the window, :mod:`.windows`).
+    ``max(1, round(0.1 n_u))`` of the ``n_u`` units drawn by the seed. The default of
+    training (``validation="auto"`` with two training units or more,
+    :mod:`.train_config`): it measures the prediction of an engine the network has not seen,
+    which validation flights of seen units do not (issue 30); and on a table with one sample
+    per cycle (C-MAPSS) a validation "flight" would be one row, leaving one-row validation
+    segments and cutting the training units into short runs.
 
 - **train**: the remaining development rows.
 

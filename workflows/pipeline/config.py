@@ -22,7 +22,7 @@ with other workers skips what is done) and not in ``metrics.json``
 ===============  ===================  =========================================================
 table            key                  meaning [default]
 ===============  ===================  =========================================================
-``pipeline``     ``seed``             seed of every random draw (discover, validation flights,
+``pipeline``     ``seed``             seed of every random draw (discover, validation units,
                                       network initialisation and batch order) [0]
 ``run``          ``jobs``             worker processes of simulate, calibrate and features
                                       (with ``scheduler = "local"``: the local Dask cluster's
