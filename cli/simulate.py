@@ -23,7 +23,9 @@ RECORDS = ("above_10kft", "all")
 
 def simulate(
     out: Annotated[Path, typer.Option("--out", help="Output: parquet directory or .h5 file.")],
-    preset: Annotated[str, typer.Option("--preset", help="Fleet preset: ds02 or tiny.")] = "tiny",
+    preset: Annotated[str, typer.Option(
+        "--preset", help="Fleet preset: ds02, ds02-study (a drawn ds02-like fleet of 30 "
+        "units) or tiny.")] = "tiny",
     units: Annotated[str | None, typer.Option(
         "--units", help="Comma-separated unit numbers of the preset (default: all).")] = None,
     rate: Annotated[float | None, typer.Option(

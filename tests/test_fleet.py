@@ -226,3 +226,18 @@ def test_committed_sample_is_what_the_simulator_makes(model):
     fresh, _, _ = fleet.simulate("tiny", seed=0, model=model)
     pd.testing.assert_frame_equal(df.reset_index(drop=True), fresh, check_dtype=False,
                                   rtol=1e-9)
+
+
+def test_study_preset_draws_another_fleet_per_seed(model):
+    """``ds02-study`` (issue 30): 24 development and 6 test units, end of life and onset
+    drawn per seed within the documented ranges."""
+    p = fleet.get_preset("ds02-study")
+    assert [u.split for u in p.units].count("test") == 6 and len(p.units) == 30
+    assert {u.mode for u in p.units} == {"HPT", "HPT+LPT"}
+    eols = []
+    for seed in (0, 1, 2):
+        _, _, rep = fleet.simulate("ds02-study", units=[3], seed=seed, rate_hz=0.01,
+                                     model=model)
+        assert 55 <= rep.eol[3] <= 95 and 14 <= rep.t_s[3] < rep.eol[3]
+        eols.append((rep.eol[3], rep.t_s[3]))
+    assert len(set(eols)) > 1

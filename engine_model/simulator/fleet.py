@@ -120,11 +120,35 @@ def _ds02_units() -> tuple[UnitSpec, ...]:
     )
 
 
+STUDY_DEV, STUDY_TEST = 24, 6
+
+
+def _ds02_study_units() -> tuple[UnitSpec, ...]:
+    """A ``ds02``-like fleet for the many-fleet study of issue 30: 24 development and 6 test
+    units, every unit's end of life drawn from 55-95 cycles and its onset from 14-38 (the
+    range of ``ds02``'s published values, 59-89 and 16-36), so that every seed gives another
+    fleet; failure modes alternate HPT / HPT+LPT (``ds02``'s two), and every third unit flies
+    ``ds02``'s shorter, lower class (flight class 1, cruise at most 24,000 ft, at most 1.4 h:
+    unit 14's), in development and test alike."""
+    units = []
+    for i in range(STUDY_DEV + STUDY_TEST):
+        short = i % 3 == 2
+        units.append(UnitSpec(
+            i + 1, 1 if short else 2, ("HPT", "HPT+LPT")[i % 2], (55, 95), (14, 38),
+            split="test" if i >= STUDY_DEV else "dev",
+            max_cruise_alt_ft=24000.0 if short else None, max_duration_h=1.4 if short else None))
+    return tuple(units)
+
+
 PRESETS: dict[str, Preset] = {
     "ds02": Preset(
         "ds02", "the paper's N-CMAPSS DS02 fleet: 6 development units (HPT, HPT+LPT modes), "
         "3 test units (HPT+LPT; 14 and 15 fly shorter, lower flights)", _ds02_units(),
         wear_params=PAPER_THETA),
+    "ds02-study": Preset(
+        "ds02-study", "ds02-like fleets for a study (24 development, 6 test units; end of life "
+        "and onset drawn per seed, modes HPT and HPT+LPT, a third on short, low flights)",
+        _ds02_study_units(), wear_params=PAPER_THETA),
     "tiny": Preset(
         "tiny", "four units with short flights and short lives, for tests and data_samples/",
         (UnitSpec(1, 1, "HPT", (10, 12), (4, 5), max_duration_h=1.3, n_routes=3),

@@ -1,0 +1,205 @@
+"""The many-fleet study of issue 30: does physics help, by how much, and with how many units?
+
+    OMP_NUM_THREADS=2 nohup python benchmarks/health_study.py --fleets 0-9 \\
+        > out/study/study.log 2>&1 &
+
+One ``ds02``-like fleet per seed (``hyprog simulate --preset ds02-study --seed S``: 24
+development and 6 test units, end of life and onset drawn per seed), calibrated as the paper
+experiment does (``hyprog calibrate --method ukf``, the paper's three parameters). In every
+fleet, for every number of training units ``n`` in :data:`SIZES` (the first ``n`` development
+units in an order drawn by the fleet's seed, so that the smaller sets are nested in the
+larger), every predictor of :data:`PREDICTORS` is trained on those units (three seeds, the
+seeds' mean prediction) and evaluated on the fleet's 6 test units; the floors of
+:mod:`prognostics.floors` are fitted on the same units.
+
+The predictors are fixed here, before any fleet of the study is seen: flight models
+(``tcn``, window 20) that differ only in their inputs, so that the difference is the
+information: ``data-driven`` (the flights' means of ``w`` and ``x_s``), ``physics`` (the
+health coordinates of θ̂ and θ̂ relative to early life: the choice of ``ds02``'s development
+folds) and ``health`` (the health coordinates alone: the best on ``ds02``'s test units, named
+here for that reason and reported as such).
+
+Report: per ``n``, the mean over fleets of each predictor's test RMSE, and the hybrid-minus-
+data-driven difference per fleet with its 95 % confidence interval over fleets (Student t);
+the curve of that difference against ``n`` (``study.png``). Every run is cached in
+``--work``/``runs.jsonl`` (fleet, n, predictor, data fingerprint); an interrupted study
+resumes, and ``--fleets`` / ``--sizes`` pick what runs. ``--rate`` (default 0.05 Hz, half
+the paper experiment's, to halve the calibration) is the sampling rate of the simulation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from health_features import hyprog, key_of, scores, train_predict  # noqa: E402
+from run_cache import append_run, read_runs  # noqa: E402
+
+from engine_model.datasets.dispatch import read_dataset  # noqa: E402
+from engine_model.datasets.fingerprint import table_fingerprint  # noqa: E402
+from prognostics.flights import to_samples  # noqa: E402
+from prognostics.floors import FLOORS, floor_predictions  # noqa: E402
+from prognostics.train_config import TrainConfig  # noqa: E402
+from prognostics.training import flight_frame  # noqa: E402
+
+SIZES = (3, 6, 12, 24)
+PREDICTORS = {"data-driven": ("tcn", "data-driven", 20), "physics": ("tcn", "physics", 20),
+              "health": ("tcn", "health", 20)}
+SEEDS = (0, 1, 2)
+HYBRIDS = ("physics", "health")
+
+
+def parse_range(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def fleet_features(work: Path, seed: int, rate: float) -> Path:
+    fleet, features = work / f"fleet-{seed}", work / f"fleet-{seed}-features"
+    if not fleet.exists():
+        hyprog("simulate", "--preset", "ds02-study", "--rate", str(rate), "--seed", str(seed),
+               "--out", str(fleet))
+    hyprog("calibrate", str(fleet), "--method", "ukf", "--jobs", "2", "--out", str(features))
+    return features
+
+
+def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict) -> None:
+    df, meta = read_dataset(fleet_features(work, seed, rate))
+    fp = table_fingerprint(df, meta)
+    flights = flight_frame(df)
+    dev, test = [int(u) for u in meta["dev_units"]], [int(u) for u in meta["test_units"]]
+    order = [int(u) for u in np.random.default_rng(seed).permutation(dev)]
+    samples = df[df["unit"].isin(test)]
+    test_fl = flights[flights["unit"].isin(test)]
+    for n in sizes:
+        units = sorted(order[:n])
+        key = key_of({"data": fp, "n": n, "floors": list(FLOORS)})
+        if key not in done:
+            fl = floor_predictions(flights[flights["unit"].isin(units)], test_fl)
+            rec = {"key": key, "kind": "floors", "fleet": seed, "n": n, "units": units,
+                   "floors": {k: scores(to_samples(p, samples)) for k, p in fl.items()}}
+            append_run(cache, rec)
+            done[key] = rec
+        for name, (model, inputs, window) in PREDICTORS.items():
+            cfg = TrainConfig(model=model, inputs=inputs, window=window, device="cpu")
+            key = key_of({"data": fp, "n": n, "units": units, "seeds": list(SEEDS),
+                          "config": cfg.to_dict()})
+            if key in done:
+                continue
+            res = train_predict(flights, meta, cfg, SEEDS, units, test, samples)
+            rec = {"key": key, "kind": "model", "fleet": seed, "n": n, "units": units,
+                   "predictor": name, **res}
+            append_run(cache, rec)
+            done[key] = rec
+            print(f"[{time.strftime('%H:%M:%S')}] fleet {seed} n {n} {name}: RMSE "
+                  f"{res['ensemble']['rmse']:.2f} ({res['seconds']:.0f} s)", flush=True)
+
+
+def t_interval(x: np.ndarray) -> tuple[float, float, float]:
+    """Mean and the 95 % Student-t interval of the mean of ``x``."""
+    from scipy.stats import t
+
+    m = float(np.mean(x))
+    if len(x) < 2:
+        return m, float("nan"), float("nan")
+    h = float(t.ppf(0.975, len(x) - 1) * np.std(x, ddof=1) / np.sqrt(len(x)))
+    return m, m - h, m + h
+
+
+def report(runs: list[dict], results: Path) -> str:
+    rows = []
+    for r in runs:
+        if r["kind"] == "model":
+            rows.append({"fleet": r["fleet"], "n": r["n"], "predictor": r["predictor"],
+                         "rmse": r["ensemble"]["rmse"], "horizon": r["ensemble"]["horizon"]})
+        else:
+            rows += [{"fleet": r["fleet"], "n": r["n"], "predictor": f"floor: {k}",
+                      "rmse": v["rmse"], "horizon": v["horizon"]}
+                     for k, v in r["floors"].items()]
+    if not rows:
+        return "no runs yet"
+    t = pd.DataFrame(rows)
+    results.mkdir(parents=True, exist_ok=True)
+    t.to_csv(results / "study_runs.csv", index=False, float_format="%.4g")
+    lines = ["# The many-fleet study (issue 30)", "",
+             "`python benchmarks/health_study.py` (its docstring). Test RMSE (every sample of "
+             "the 6 test units, the seeds' mean prediction), mean over fleets; the difference "
+             "hybrid - data-driven per fleet, mean and 95 % CI over fleets.", "",
+             "| n units | fleets | " + " | ".join(sorted(t["predictor"].unique())) +
+             " | " + " | ".join(f"{h} - data-driven [95 % CI]" for h in HYBRIDS) + " |",
+             "|---" * (2 + t["predictor"].nunique() + len(HYBRIDS)) + "|"]
+    curve = {h: [] for h in HYBRIDS}
+    for n, g in t.groupby("n"):
+        p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
+        cells = [f"{p[c].mean():.2f}" if c in p.columns else "-"
+                 for c in sorted(t["predictor"].unique())]
+        diffs = []
+        for h in HYBRIDS:
+            if h in p and "data-driven" in p:
+                d = (p[h] - p["data-driven"]).dropna().to_numpy()
+                m, lo, hi = t_interval(d)
+                curve[h].append((n, m, lo, hi))
+                diffs.append(f"{m:+.2f} [{lo:+.2f}, {hi:+.2f}] ({len(d)})")
+            else:
+                diffs.append("-")
+        lines.append(f"| {n} | {p.shape[0]} | " + " | ".join(cells) + " | " +
+                     " | ".join(diffs) + " |")
+    text = "\n".join(lines) + "\n"
+    (results / "study.md").write_text(text)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=150)
+    for h, pts in curve.items():
+        if pts:
+            n, m, lo, hi = map(np.array, zip(*pts, strict=True))
+            ax.errorbar(n, m, yerr=[m - lo, hi - m], marker="o", capsize=4,
+                        label=f"{h} - data-driven")
+    ax.axhline(0.0, color="grey", lw=0.8)
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("training units")
+    ax.set_ylabel("test RMSE difference [cycles] (< 0: physics helps)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(results / "study.png")
+    plt.close(fig)
+    return text
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--fleets", default="0-9", help="fleet seeds, e.g. 0-9 or 0,3,5")
+    ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
+    ap.add_argument("--rate", type=float, default=0.05)
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "study")
+    ap.add_argument("--results", type=Path,
+                    default=ROOT / "benchmarks" / "results" / "health_study")
+    ap.add_argument("--report", action="store_true", help="write the tables from the cache")
+    a = ap.parse_args(argv)
+    a.work.mkdir(parents=True, exist_ok=True)
+    cache = a.work / "runs.jsonl"
+    if not a.report:
+        done = {r["key"]: r for r in read_runs(cache)}
+        sizes = [int(s) for s in a.sizes.split(",")]
+        for seed in parse_range(a.fleets):
+            run_fleet(a.work, seed, a.rate, sizes, cache, done)
+            print(report(read_runs(cache), a.results), flush=True)
+    print(report(read_runs(cache), a.results))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
