@@ -6,7 +6,8 @@ One job per module:
 - :mod:`.scaling`      min-max scaling to [-1, 1] fitted on training units
 - :mod:`.splits`       development / validation / conformal-calibration rows
 - :mod:`.windows`      sliding windows as strided views (no per-window copy)
-- :mod:`.models`       the paper's FNN and 1-D CNN
+- :mod:`.flights`      flight tables: per-flight means and the health coordinates of theta_hat
+- :mod:`.models`       the paper's FNN and 1-D CNN, Li et al.'s DCNN, the flight models' TCN
 - :mod:`.train_config` :class:`~.train_config.TrainConfig`, what defines a training run
 - :mod:`.training`     the training loop of one network (AMSGrad, early stopping, seeds)
 - :mod:`.ensemble`     a trained model (one network per seed), :func:`~.ensemble.fit`, predictions
@@ -16,6 +17,7 @@ One job per module:
 - :mod:`.cross_validation` folds of whole units, held-out units truncated as NASA's test
   files, one score per unit at its last cycle (the C-MAPSS protocol on training units)
 - :mod:`.baseline`     physics-only RUL from the health-index trend of theta_hat
+- :mod:`.floors`       predictors without a network (life, HI lookup, physics trend)
 - :mod:`.outputs`      tables, JSON and text written atomically
 - :mod:`.plots`        figures (matplotlib, Agg)
 
