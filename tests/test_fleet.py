@@ -202,6 +202,9 @@ def test_cli_simulate_info_effects(tmp_path):
 
 @pytest.mark.parametrize("args, msg", [
     (["--effect", "warp_drive"], "unknown effect 'warp_drive'"),
+    # a request that would inject nothing (issue 31): refused, naming the typical sizes
+    (["--effect", "customer_bleed"], "give its size, e.g. customer_bleed:f0=0.015"),
+    (["--effect", "customer_bleed:f0=0,f_alt=0"], "neutral default"),
     (["--units", "1,x"], "--units 1,x"),
     (["--units", "9"], "no unit 9"),
     (["--rate", "0.3"], "--rate"),

@@ -236,7 +236,16 @@ class Effect:
         return {"name": self.registry_name, "params": {**self.opts, **self.values}}
 
     def is_neutral(self) -> bool:
+        """Every parameter at its neutral default: the effect changes nothing."""
         return all(self.values[q.name] == q.default for q in self.params)
+
+    def typical_spec(self) -> str:
+        """This effect's specification with every model parameter at its typical size (the
+        size to suggest when a request would inject nothing), options kept."""
+        items = [f"{k}={v}" for k, v in self.opts.items()]
+        items += [f"{q.name}={q.typical:g}" for q in self.params
+                  if q.kind == "model" and q.typical is not None]
+        return self.registry_name + (":" + ",".join(items) if items else "")
 
     def __repr__(self):
         return f"<Effect {self.spec()}>"

@@ -339,6 +339,11 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     in this process (neither); all three run through the one executor
     (:func:`engine_model.runtime.cluster.executor`)."""
     p = get_preset(preset) if isinstance(preset, str) else preset
+    for e in effects:
+        if e.is_neutral():
+            raise InputError(f"effect {e.spec()}: every parameter is at its neutral default, "
+                             "so the fleet would contain no effect; give its size, e.g. "
+                             f"{e.typical_spec()}")
     specs = select_units(p, units)
     rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
     rec = record or p.record
