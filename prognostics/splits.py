@@ -133,6 +133,12 @@ def development_and_test_units(present: Sequence[int], metadata: dict | None,
     """
     meta = metadata or {}
     present_set = set(int(u) for u in present)
+    for key in ("dev_units", "test_units"):
+        listed = meta.get(key)
+        if listed is not None and (not isinstance(listed, (list, tuple)) or not all(
+                isinstance(u, (int, np.integer)) and not isinstance(u, bool) for u in listed)):
+            raise InputError(f"{source}: metadata {key} must be a list of unit numbers, got "
+                             f"{listed!r}")
     if test_units is None:
         test_units = [int(u) for u in meta.get("test_units") or [] if int(u) in present_set]
     test = _check_listed(test_units, present_set, "test", source)

@@ -165,6 +165,11 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     check_table(frame, columns, source)
     unit = frame["unit"].to_numpy()
     cycle = frame["cycle"].to_numpy()
+    longest = int(np.bincount(np.unique(unit, return_inverse=True)[1]).max())
+    if cfg.window > longest:
+        rows = "flights" if cfg.per_flight else "rows"
+        raise InputError(f"{source}: window {cfg.window} is longer than the longest development "
+                         f"unit ({longest} {rows})")
     n_fit = len(set(dev) - set(cfg.conformal_units))
     cfg = replace(cfg, validation=cfg.validation_for(n_fit))
     roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,

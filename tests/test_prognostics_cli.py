@@ -259,6 +259,8 @@ def test_experiment_bad_options(runner, features_parquet, tmp_path):
                           tmp_path / "e", "--seeds", "0"), "--seeds 0")
     assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
                           tmp_path / "e", "--ablations", "small"), "16")  # default 16,18,20
+    assert_user_error(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+                          tmp_path / "e", "--alpha", "nan"), "--alpha must lie in (0, 1)")
     assert_nothing_left(tmp_path, "e")
     # a folder of other files is refused before anything is written or cleaned in it
     other = tmp_path / "home"
@@ -315,3 +317,30 @@ def test_cmapss_files_import_train_and_evaluate_unchanged(runner, tmp_path):
         float(test[u] - seen[u]) for u in test)
     assert sorted(e["cycle"] for e in last.values()) == sorted(seen.values())
     assert m["samples"]["overall"]["n"] == sum(seen.values()) - 2 * 4  # windows of 5
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--max-rul", "nan"], "max_rul must be a positive finite number"),
+    (["--max-rul", "inf"], "max_rul must be a positive finite number"),
+    (["--window", "100000000"], "window 100000000 is longer than the longest development unit"),
+    (["--lr", "inf"], "learning rate"),
+    (["--alpha", "nan", "--conformal-units", "4"], "alpha"),
+])
+def test_train_refuses_values_before_training(runner, features_parquet, tmp_path, args,
+                                              fragment):
+    """Issue 31: values that used to fail after training (a traceback, the work lost) or
+    allocate without bound are refused up front, with nothing written."""
+    out = tmp_path / "m"
+    r = run(runner, "train", features_parquet, "--model", "cnn", "--inputs", "data-driven",
+            *FAST, *args, "--out", out)
+    assert_user_error(r, fragment)
+    assert not out.exists()
+
+
+def test_train_names_bad_unit_lists_in_the_metadata(runner, tmp_path):
+    from tests.conftest import synthetic_features
+
+    df, meta = synthetic_features()
+    path = write_parquet(df, tmp_path / "f.parquet", {**meta, "dev_units": "abc"})
+    r = run(runner, "train", path, "--model", "fnn", *FAST, "--out", tmp_path / "m")
+    assert_user_error(r, "metadata dev_units must be a list of unit numbers")

@@ -58,6 +58,8 @@ class ExperimentConfig:
                              f"{', '.join(PARTS)}")
         if not self.seeds:
             raise InputError("experiment: no seeds")
+        if not 0.0 < self.alpha < 1.0:
+            raise InputError(f"experiment: --alpha must lie in (0, 1), got {self.alpha}")
         parts = tuple(dict.fromkeys(("main", *self.parts)))
         abl = self.ablation_seeds if self.ablation_seeds is not None else self.seeds[:3]
         return replace(self, parts=parts, ablation_seeds=tuple(abl))
