@@ -119,16 +119,16 @@ def unit_rul(cycles, hi, max_rul: float) -> np.ndarray:
     return out
 
 
-def trend_per_flight(flights: pd.DataFrame, max_rul: float, source: str = "table"
-                     ) -> np.ndarray:
+def trend_per_flight(flights: pd.DataFrame, max_rul: float, source: str = "table",
+                     column: str = "HI_hat") -> np.ndarray:
     """Step 3-4's RUL at every row of a flight table (:mod:`.flights`, rows ordered by unit
-    and cycle) from its ``HI_hat`` column, each unit on its own."""
-    if "HI_hat" not in flights.columns:
+    and cycle) from its health-index ``column``, each unit on its own."""
+    if column not in flights.columns:
         raise InputError(f"{source}: the physics trend needs the health index of θ̂ (a table "
                          "with <q>_hat columns: run hyprog calibrate first)")
     out = np.empty(len(flights))
     cycle = flights["cycle"].to_numpy(float)
-    hi = flights["HI_hat"].to_numpy(float)
+    hi = flights[column].to_numpy(float)
     for idx in flights.groupby("unit", sort=False).indices.values():
         out[idx] = unit_rul(cycle[idx], hi[idx], max_rul)
     return out
@@ -145,9 +145,7 @@ def baseline_per_cycle(df: pd.DataFrame, hi_fn: Callable[[np.ndarray], np.ndarra
         df = df[df["unit"].isin([int(u) for u in units])]
     th = theta_per_cycle(df)
     th["HI"] = np.asarray(hi_fn(th[list(THETA_NAMES)].to_numpy()), float)
-    th["RUL_pred"] = np.nan
-    for _, g in th.groupby("unit", sort=False):
-        th.loc[g.index, "RUL_pred"] = unit_rul(g["cycle"], g["HI"], max_rul)
+    th["RUL_pred"] = trend_per_flight(th, max_rul, column="HI")
     if TARGET in df.columns:
         true = df.groupby(["unit", "cycle"], sort=True)[TARGET].mean().to_numpy()
         th[TARGET] = true

@@ -56,6 +56,7 @@ from engine_model.validation import InputError
 
 from .baseline import trend_per_flight
 from .features import TARGET, check_table, resolve_inputs, sort_table, unobservable_columns
+from .floors import unit_lives
 from .models import build_model, parameter_count
 from .scaling import CONDITION, Scaler, fit_scaler
 from .splits import (
@@ -142,12 +143,6 @@ def flight_frame(df: pd.DataFrame, source: str = "table") -> pd.DataFrame:
     return flight_table(df, hi, source=source)
 
 
-def development_life(frame: pd.DataFrame) -> float:
-    """The longest life among the units of ``frame``: last cycle + its RUL."""
-    last = frame.groupby("unit", sort=False)[["cycle", TARGET]].last()
-    return float((last["cycle"] + last[TARGET]).max())
-
-
 def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
             source: str = "table") -> Prepared:
     """Steps 1-3 of the module docstring."""
@@ -198,7 +193,7 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     offset = None
     if cfg.model == "trend":
         if cfg.trend_cap is None:
-            cfg = replace(cfg, trend_cap=development_life(frame[roles == TRAIN]))
+            cfg = replace(cfg, trend_cap=float(unit_lives(frame[roles == TRAIN]).max()))
         offset = trend_per_flight(frame, cfg.trend_cap, source)
         y = y - offset
     a, b = segments(unit, roles)

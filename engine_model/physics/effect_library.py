@@ -308,28 +308,27 @@ class DesignScaling(Effect):
         return value
 
 
+def _required_option(effect: Effect, key: str, allowed, example: str) -> str:
+    """The effect's option ``key``, required and one of ``allowed`` (``example``: a value and
+    what follows it in the message's example specification)."""
+    name = effect.registry_name
+    value = effect.opts.get(key)
+    if value is None:
+        raise EffectSpecError(f"effect {name}: option '{key}' is required (e.g. "
+                              f"{name}:{key}={example})")
+    if value not in allowed:
+        raise EffectSpecError(f"effect {name}: unknown {key} {value!r}; one of "
+                              f"{', '.join(allowed)}")
+    return value
+
+
 def _component_option(effect: Effect, example: str) -> str:
     """The effect's ``component`` option, checked (``example``: parameters for the message)."""
-    name = effect.registry_name
-    comp = effect.opts.get("component")
-    if comp is None:
-        raise EffectSpecError(f"effect {name}: option 'component' is required (e.g. "
-                              f"{name}:component=HPC,{example})")
-    if comp not in COMPONENT_MODS:
-        raise EffectSpecError(f"effect {name}: unknown component {comp!r}; one of "
-                              f"{', '.join(COMPONENT_MODS)}")
-    return comp
+    return _required_option(effect, "component", COMPONENT_MODS, f"HPC,{example}")
 
 
 def _channel_option(effect: Effect) -> str:
-    ch = effect.opts.get("channel")
-    if ch is None:
-        raise EffectSpecError(f"effect {effect.registry_name}: option 'channel' is required "
-                              f"(e.g. {effect.registry_name}:channel=T48,...)")
-    if ch not in OUTPUT_NAMES:
-        raise EffectSpecError(f"effect {effect.registry_name}: unknown channel {ch!r}; one of "
-                              f"{', '.join(OUTPUT_NAMES)}")
-    return ch
+    return _required_option(effect, "channel", OUTPUT_NAMES, "T48,...")
 
 
 class SensorEffect(Effect):
