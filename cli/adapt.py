@@ -22,7 +22,8 @@ from cli.common import (
 
 
 def adapt(
-    data: Annotated[Path, typer.Argument(help="Dataset with unit, cycle, condition and the "
+    data: Annotated[Path, typer.Argument(
+        metavar="DATA", help="Dataset with unit, cycle, condition and the "
                                          "channels (hyprog data import-cmapss writes one).")],
     out: Annotated[Path, typer.Option("--out", help="Adapted model to write (JSON).")],
     channels: Annotated[str | None, typer.Option(
@@ -43,7 +44,9 @@ def adapt(
     """Fit what every engine shares (candidate effects, chosen by leaving each operating
     condition out) apart from each engine's own health, and write the adapted model.
 
-    Example: hyprog adapt fd002 --out adapted.json
+    \b
+    Example:
+      hyprog adapt fd002 --out adapted.json
     """
     with user_errors(data):
         from calibration.adaptation import adapt as run

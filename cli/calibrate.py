@@ -7,13 +7,15 @@ ukf --out FEATURES`` is ``hyprog calibrate run DATA ...``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 from typer.core import TyperGroup
 
 from cli.common import (
+    APP_SETTINGS,
     CliError,
+    PlainUsageCommand,
     Quiet,
     console,
     echo_json,
@@ -34,12 +36,10 @@ class _DefaultRun(TyperGroup):
         return super().parse_args(ctx, args)
 
 
-app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, add_completion=False,
+app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, **APP_SETTINGS,
                   help="Estimate the health parameters theta(t) of every unit (UKF, EKF, "
                        "MHE, MAP per cycle) and write the paper's feature table. "
                        "'hyprog calibrate DATA --out F' is 'hyprog calibrate run DATA --out F'.")
-
-_METHODS = "ukf, ekf, mhe or map_cycle"
 
 
 def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
@@ -105,12 +105,14 @@ ModelEffects = Annotated[Path | None, typer.Option(
     "on in the engine model and recorded in the output's metadata.")]
 
 
-@app.command("run")
+@app.command("run", cls=PlainUsageCommand)
 def run(
-    data: Annotated[Path, typer.Argument(help="Dataset: parquet directory or N-CMAPSS h5.")],
+    data: Annotated[Path, typer.Argument(
+        metavar="DATA", help="Dataset: parquet directory or N-CMAPSS h5.")],
     out: Annotated[Path, typer.Option("--out", help="Feature table to write (parquet "
                                       "directory by unit; a rerun resumes).")],
-    method: Annotated[str, typer.Option("--method", help=_METHODS)] = "ukf",
+    method: Annotated[Literal["ukf", "ekf", "mhe", "map_cycle"], typer.Option(
+        "--method", help="The estimator.")] = "ukf",
     params: Params = None, sensors: Sensors = None, drift: Drift = None,
     noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
@@ -119,7 +121,9 @@ def run(
 ):
     """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std).
 
-    Example: hyprog calibrate data_samples/tiny --method ukf --drift 0.01 --out features
+    \b
+    Example:
+      hyprog calibrate data_samples/tiny --method ukf --drift 0.01 --out features
     """
     import warnings
 
@@ -157,6 +161,8 @@ def run(
     if as_json:
         echo_json(rep)
         return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
+        return
     # a line per parameter and bound over the fleet, not one per unit (every unit's is in --json)
     per_unit = {w for v in res.units.values() for w in v["warnings"] if w.endswith(AT_BOUND)}
     for w in [w for w in warned if w not in per_unit] + summarise_bound_hits(res.units):
@@ -174,9 +180,10 @@ def run(
         c.print(f"{nonconverged:,} of {res.samples:,} samples did not converge ({per})")
 
 
-@app.command("compare")
+@app.command("compare", cls=PlainUsageCommand)
 def compare_cmd(
-    data: Annotated[Path, typer.Argument(help="Simulated dataset (with the true theta).")],
+    data: Annotated[Path, typer.Argument(
+        metavar="DATA", help="Simulated dataset (with the true theta).")],
     methods: Annotated[str, typer.Option("--methods", help="Comma-separated methods.")] =
     "ukf,ekf,mhe,map_cycle",
     params: Params = None, sensors: Sensors = None, drift: Drift = None,
@@ -188,7 +195,9 @@ def compare_cmd(
     """Each method against the truth: RMSE, bias, consistency, Cramér-Rao bound, whiteness,
     speed.
 
-    Example: hyprog calibrate compare fleet/ --methods ukf,ekf --jobs 2 --json
+    \b
+    Example:
+      hyprog calibrate compare fleet/ --methods ukf,ekf --jobs 2 --json
     """
     import warnings
 

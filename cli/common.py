@@ -11,12 +11,34 @@ from contextlib import contextmanager
 from typing import Annotated
 
 import typer
+from typer.core import TyperCommand
 
 EXIT_FAILED = 1  # a computation failed (no convergence)
 EXIT_USAGE = 2  # bad input or usage (cli.main docstring: the exit-code rule)
 
-QUIET_HELP = ("No progress bars or status lines on stderr; errors and warnings are still "
-              "printed. Every command takes it.")
+QUIET_HELP = ("Print nothing but errors and warnings: no progress bars, status lines or "
+              "closing summary (the result is in the output; --json prints a summary). A "
+              "command whose result is a printed table still prints it. Every command takes it.")
+
+class PlainUsageCommand(TyperCommand):
+    """A command whose usage line names its arguments as click and POSIX do (``MODEL_DIR``,
+    ``[DATA]``), not typer's ``{MODEL_DIR}``. Every command is registered with it
+    (``@app.command(NAME, cls=PlainUsageCommand)``)."""
+
+    def collect_usage_pieces(self, ctx) -> list[str]:
+        pieces = [self.options_metavar] if self.options_metavar else []
+        for param in self.get_params(ctx):
+            if param.param_type_name != "argument":
+                continue
+            name = param.metavar or param.name.upper()
+            name = name if param.required else f"[{name}]"
+            pieces.append(name + ("..." if param.nargs != 1 else ""))
+        return pieces
+
+
+#: Settings of every typer app: plain click help (rich markup would print ``<bool>`` after
+#: every flag and swallow ``[run]``-style TOML table names), tracebacks never decorated.
+APP_SETTINGS = {"rich_markup_mode": None, "pretty_exceptions_enable": False}
 
 #: ``--quiet``, the same on every command (scripts pass it uniformly): a command's parameter
 #: ``quiet: Quiet = False``.
@@ -40,6 +62,19 @@ def console(stderr: bool = False):
     from rich.console import Console
 
     return Console(stderr=stderr, highlight=False)
+
+
+def wide_console(table):
+    """The stdout console, as wide as ``table`` needs when stdout is not a terminal (rich
+    would otherwise fold a wide table, headers too, at 80 columns in a pipe or a file)."""
+    from rich.console import Console
+    from rich.measure import Measurement
+
+    c = console()
+    need = Measurement.get(c, c.options.update_width(10_000), table).maximum
+    if c.is_terminal or need <= c.width:
+        return c
+    return Console(highlight=False, width=need)
 
 
 @contextmanager

@@ -8,21 +8,33 @@ from typing import Annotated
 
 import typer
 
-from cli.common import CliError, Overwrite, Quiet, console, echo_json, user_errors
+from cli.common import (
+    APP_SETTINGS,
+    CliError,
+    Overwrite,
+    PlainUsageCommand,
+    Quiet,
+    console,
+    echo_json,
+    user_errors,
+)
 
 app = typer.Typer(help="Inspect fleet datasets (parquet or N-CMAPSS h5); import C-MAPSS.",
-                  no_args_is_help=True, pretty_exceptions_enable=False)
+                  no_args_is_help=True, **APP_SETTINGS)
 
 
-@app.command("info")
+@app.command("info", cls=PlainUsageCommand)
 def info(
-    path: Annotated[Path, typer.Argument(help="Dataset: a parquet directory/file or an h5 file.")],
+    path: Annotated[Path, typer.Argument(
+        metavar="PATH", help="Dataset: a parquet directory/file or an h5 file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
     quiet: Quiet = False,
 ):
     """Summarise a dataset: units, split, cycles, rows, end of life, onset t_s, effects.
 
-    Example: hyprog data info data_samples/tiny --json
+    \b
+    Example:
+      hyprog data info data_samples/tiny --json
     """
     from engine_model import datasets
 
@@ -55,9 +67,10 @@ def info(
     out.print("columns: " + "; ".join(f"{g} ({len(c)})" for g, c in rep["columns"].items() if c))
 
 
-@app.command("import-cmapss")
+@app.command("import-cmapss", cls=PlainUsageCommand)
 def import_cmapss(
-    train: Annotated[Path, typer.Argument(help="C-MAPSS train_FD00x.txt.")],
+    train: Annotated[Path, typer.Argument(
+        metavar="TRAIN", help="C-MAPSS train_FD00x.txt.")],
     out: Annotated[Path, typer.Option("--out", help="Parquet dataset directory to write.")],
     test: Annotated[Path | None, typer.Option("--test", help="test_FD00x.txt (with --rul).")
                     ] = None,
@@ -72,7 +85,9 @@ def import_cmapss(
     is replaced only when it is a dataset hyprog wrote that holds nothing else (or with
     --overwrite); never the files it reads.
 
-    Example: hyprog data import-cmapss train_FD002.txt --out fd002
+    \b
+    Example:
+      hyprog data import-cmapss train_FD002.txt --out fd002
     """
     from engine_model import datasets, runtime
 
@@ -89,6 +104,8 @@ def import_cmapss(
            "test_units": meta["test_units"], "test_unit_offset": meta["test_unit_offset"]}
     if as_json:
         echo_json(rep)
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     console().print(f"wrote {path}: {len(df):,} rows, {len(meta['dev_units'])} train units,"
                     f" {len(meta['test_units'])} test units (test unit u is unit"

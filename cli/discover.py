@@ -4,7 +4,7 @@ report the residual before and after (:mod:`calibration.discrepancy`)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
@@ -35,12 +35,13 @@ def _drift(text: str | None):
 
 
 def discover(
-    data: Annotated[Path, typer.Argument(help="Dataset: parquet directory or N-CMAPSS h5.")],
+    data: Annotated[Path, typer.Argument(
+        metavar="DATA", help="Dataset: parquet directory or N-CMAPSS h5.")],
     out: Annotated[Path, typer.Option("--out", help="Report directory (discover.json, "
                                       "discover.md, residuals.png).")],
-    method: Annotated[str, typer.Option("--method", help="Warm start of the null fit: coarse "
-                                        "(the same fit on every 16th sample) or an estimator: "
-                                        "mhe, ukf, ekf, map_cycle.")] = "coarse",
+    method: Annotated[Literal[_METHODS], typer.Option(
+        "--method", help="Warm start of the null fit: coarse (the same fit on every 16th "
+        "sample) or an estimator.")] = "coarse",
     candidates: Annotated[str | None, typer.Option(
         "--candidates", help="Comma-separated effects to test (default: the library's steady and "
         "sensor effects; add map_scaling for map adaptation of each component).")] = None,
@@ -72,7 +73,9 @@ def discover(
     existing --out is replaced only when it is an earlier report that holds nothing else (or
     with --overwrite); never the DATA it reads.
 
-    Example: hyprog discover data_samples/tiny --method ukf --out discover-report
+    \b
+    Example:
+      hyprog discover data_samples/tiny --method ukf --out discover-report
     """
     with user_errors(data):
         from calibration import CalibrationSetup
@@ -84,11 +87,10 @@ def discover(
             report_dict,
             write_report,
         )
-        from cli.common import check_choice, get_model
+        from cli.common import get_model
         from engine_model.datasets import read_dataset
         from engine_model.runtime import output_lock
 
-        check_choice(method, "--method", _METHODS)
         p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
         kw = {k: v for k, v in {"params": p, "sensors": s}.items() if v is not None}
         setup = CalibrationSetup(**kw)
@@ -118,6 +120,8 @@ def discover(
             write_report(result, out, overwrite, (data,))
     if as_json:
         echo_json(report_dict(result))
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     c = console()
     c.print(f"verdict: {result.verdict}")

@@ -17,7 +17,9 @@ def effects(
     and the channels each effect moves. Switch one on in a simulation with
     'hyprog simulate --effect NAME[:param=value,...]'.
 
-    Example: hyprog effects --json
+    \b
+    Example:
+      hyprog effects --json
     """
     from engine_model.physics.effects import describe_effects
 

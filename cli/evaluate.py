@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
 from cli.common import (
     CliError,
     Quiet,
-    console,
     echo_json,
     parse_units,
     progress_bar,
     user_errors,
+    wide_console,
 )
 
 
@@ -32,19 +32,24 @@ def load_model_warned(model_dir: Path):
 
 
 def evaluate(
-    model_dir: Annotated[Path, typer.Argument(help="Model directory written by hyprog train.")],
-    features: Annotated[Path, typer.Argument(help="Feature table with the model's inputs "
+    model_dir: Annotated[Path, typer.Argument(
+        metavar="MODEL_DIR", help="Model directory written by hyprog train.")],
+    features: Annotated[Path, typer.Argument(
+        metavar="FEATURES", help="Feature table with the model's inputs "
                                              "and RUL.")],
     units: Annotated[str | None, typer.Option(
         "--units", help="Units to evaluate (default: the metadata's test_units).")] = None,
-    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
+    device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
+        "--device", help="Where the networks run.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
     quiet: Quiet = False,
 ):
     """RMSE, NASA score, interval coverage per test unit and overall, on every sample (the
     paper's protocol) and at each unit's last cycle (C-MAPSS's); prediction horizon.
 
-    Example: hyprog evaluate models/cnn features.parquet --json
+    \b
+    Example:
+      hyprog evaluate models/cnn features.parquet --json
     """
     from engine_model.datasets import read_dataset
 
@@ -79,4 +84,20 @@ def evaluate(
     o = s["overall"]
     t.add_row("all", f"{o['n']:,}", f"{o['rmse']:.3f}", f"{o['score']:.4g}", "", "", "",
               f"{last['overall']['rmse']:.3f}", f"{hz['mean']:.3g}", *cells(o))
-    console().print(t)
+    al = metrics["alpha_lambda"]
+    life = Table("λ (fraction of life)", f"within ±{al['alpha']:.0%}", "relative accuracy",
+                 title="accuracy at t_P + λ (t_EOL - t_P)")
+    for lam in al["lambdas"]:
+        k = f"{lam:g}"
+        seen = [u for u, r in al["units"].items() if r[k] is not None]
+        within = sum(al["units"][u][k]["within"] for u in seen)
+        life.add_row(k, f"{within} of {len(seen)} units", f"{al['relative_accuracy'][k]:.3f}"
+                     if seen else "-")
+    bins = Table("true RUL", "samples", "median Δ", "Δ 25-75 %", "Δ 5-95 %",
+                 title="Δ = true - predicted RUL (> 0: early)")
+    for b in metrics["error_by_rul"]:
+        bins.add_row(f"{b['lo']:g}-{b['hi']:g}", f"{b['n']:,}", f"{b['median']:+.3g}",
+                     f"{b['q25']:+.3g} .. {b['q75']:+.3g}", f"{b['q05']:+.3g} .. {b['q95']:+.3g}")
+    c = wide_console(t)
+    for table in (t, life, bins):
+        c.print(table)

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
 from cli.common import (
+    APP_SETTINGS,
     CliError,
+    PlainUsageCommand,
     Quiet,
     console,
     echo_json,
@@ -18,7 +20,7 @@ from cli.common import (
 )
 
 app = typer.Typer(help="The paper's experiments and ablations on a feature table.",
-                  no_args_is_help=True, pretty_exceptions_enable=False)
+                  no_args_is_help=True, **APP_SETTINGS)
 
 
 def _seeds(text: str, option: str) -> tuple[int, ...]:
@@ -34,7 +36,7 @@ def _seeds(text: str, option: str) -> tuple[int, ...]:
         raise CliError(f"{option} {text}: expected a count or comma-separated seeds") from None
 
 
-@app.command("paper")
+@app.command("paper", cls=PlainUsageCommand)
 def paper(
     data: Annotated[Path, typer.Option("--data", help="Feature table (hyprog calibrate).")],
     out: Annotated[Path, typer.Option("--out", help="Output directory (a rerun resumes).")],
@@ -51,7 +53,8 @@ def paper(
     epochs: Annotated[int | None, typer.Option(
         "--epochs", help="Maximum epochs of every run (default: 60 FNN, 30 CNN).")] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Conformal miscoverage.")] = 0.1,
-    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
+    device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
+        "--device", help="Where the networks run.")] = "auto",
     no_baseline: Annotated[bool, typer.Option(
         "--no-baseline", help="Skip the physics-only baseline (needs the engine model).")
     ] = False,
@@ -62,7 +65,9 @@ def paper(
     intervals and the physics baseline: Markdown + CSV tables and PNG figures in OUT. Every
     training run is cached in OUT/runs: a rerun resumes where it stopped.
 
-    Example: hyprog experiment paper --data features.parquet --out results/paper --seeds 5
+    \b
+    Example:
+      hyprog experiment paper --data features.parquet --out results/paper --seeds 5
     """
     from engine_model.datasets import read_dataset
     from workflows.paper import PARTS, ExperimentConfig, run_experiment
@@ -86,6 +91,8 @@ def paper(
         res = run_experiment(df, meta, out, cfg, log=log, source=str(data), inputs=(data,))
     if as_json:
         echo_json(res)
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     console().print(f"{res['runs']} runs ({res['trained']} trained, {res['cached']} cached); "
                     f"tables {res['report']['tables']}, per-run {res['report']['runs']}, "

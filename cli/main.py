@@ -38,8 +38,10 @@ from cli import (
 from cli import discover as discover_cmd
 from cli import pipeline as pipeline_cmd
 from cli.common import (
+    APP_SETTINGS,
     EXIT_USAGE,
     TERMINATED,
+    PlainUsageCommand,
     error_line,
     exit_code_after,
     forget_unhandled_interrupt,
@@ -76,8 +78,11 @@ class HyprogGroup(TyperGroup):
             # (a signal whose exception Python swallowed in a finalizer let it finish)
             stopped = rv == 130
         except ClickException as e:
-            if type(e).__name__ == "NoArgsIsHelpError":  # a bare group: its help
+            if type(e).__name__ == "NoArgsIsHelpError":  # a bare group: its help, one line
                 e.show()
+                ctx = getattr(e, "ctx", None)
+                where = ctx.command_path if ctx is not None else "hyprog"
+                typer.echo(error_line(f"{where}: missing a command (listed above)"), err=True)
                 rv = EXIT_USAGE
             else:
                 ctx = getattr(e, "ctx", None)
@@ -112,21 +117,29 @@ app = typer.Typer(
     cls=HyprogGroup,
     help="Hybrid physics + deep-learning prognostics for turbofan engine fleets.",
     no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
+    **APP_SETTINGS,
 )
-app.add_typer(model.app, name="model")
-app.add_typer(data.app, name="data")
-app.add_typer(calibrate.app, name="calibrate")
-app.command("simulate")(simulate.simulate)
-app.command("effects")(effects.effects)
-app.command("discover")(discover_cmd.discover)
-app.command("adapt")(adapt.adapt)
-app.command("train")(train.train)
-app.command("evaluate")(evaluate.evaluate)
-app.command("predict")(predict.predict)
-app.add_typer(experiment.app, name="experiment")
-app.command("pipeline")(pipeline_cmd.pipeline)
+#: (name, command or sub-app, the one line of the root's command list), in the order a user
+#: meets them.
+_COMMANDS = (
+    ("pipeline", pipeline_cmd.pipeline, "Data to report: calibrate, discover, train, evaluate."),
+    ("simulate", simulate.simulate, "Simulate a fleet to failure (data with the true health)."),
+    ("data", data.app, "Inspect datasets; import C-MAPSS."),
+    ("calibrate", calibrate.app, "Estimate each unit's health parameters theta(t)."),
+    ("discover", discover_cmd.discover, "Find what the engine model lacks, from residuals."),
+    ("adapt", adapt.adapt, "Fit the effects every engine of a fleet shares."),
+    ("effects", effects.effects, "List the effects the simulator and discover know."),
+    ("train", train.train, "Train a RUL model on a feature table."),
+    ("evaluate", evaluate.evaluate, "Score a RUL model on the test units."),
+    ("predict", predict.predict, "Predict the RUL of every sample of a table."),
+    ("experiment", experiment.app, "The paper's experiments and ablations."),
+    ("model", model.app, "The engine model F(w, theta): points, envelope, reference."),
+)
+for _name, _target, _short in _COMMANDS:
+    if isinstance(_target, typer.Typer):
+        app.add_typer(_target, name=_name, short_help=_short)
+    else:
+        app.command(_name, cls=PlainUsageCommand, short_help=_short)(_target)
 
 
 def _version(value: bool):

@@ -22,8 +22,10 @@ from typing import Annotated
 import typer
 
 from cli.common import (
+    APP_SETTINGS,
     EXIT_FAILED,
     CliError,
+    PlainUsageCommand,
     Quiet,
     console,
     echo_json,
@@ -35,7 +37,7 @@ from cli.common import (
 app = typer.Typer(
     help="The physics-based engine model F(w, theta) -> (x_s, x_v).",
     no_args_is_help=True,
-    pretty_exceptions_enable=False,
+    **APP_SETTINGS,
 )
 
 MAX_FAILURE_ROWS = 20
@@ -130,7 +132,7 @@ def _point_groups(theta_given: bool):
     return groups
 
 
-@app.command()
+@app.command(cls=PlainUsageCommand)
 def point(
     alt: Annotated[float, typer.Option("--alt", help="Pressure altitude (ft).")],
     mach: Annotated[float, typer.Option("--mach", help="Flight Mach number.")],
@@ -147,7 +149,9 @@ def point(
 ):
     """Every output of the engine model at one operating point.
 
-    Example: hyprog model point --alt 35000 --mach 0.8 --tra 90 --theta HPT_eff_mod=-0.02
+    \b
+    Example:
+      hyprog model point --alt 35000 --mach 0.8 --tra 90 --theta HPT_eff_mod=-0.02
     """
     with user_errors():
         _check_point(alt, mach, tra, t2, dt_isa)
@@ -218,7 +222,7 @@ def _print_point(values: dict, th: dict, s) -> None:
 
 
 # ----------------------------------------------------------------------------- envelope
-@app.command()
+@app.command(cls=PlainUsageCommand)
 def envelope(
     n: Annotated[int, typer.Option("--n", min=1, help="Number of random points.")] = 2000,
     seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
@@ -230,7 +234,9 @@ def envelope(
     alt 0-42,000 ft, Mach up to min(0.85, 350 kt CAS), TRA 20-100 %, ISA +-15 K,
     theta uniform in [-0.05, 0]. A report: exits 0 even when points fail.
 
-    Example: hyprog model envelope --n 2000 --seed 0
+    \b
+    Example:
+      hyprog model envelope --n 2000 --seed 0
     """
     from engine_model.analysis.envelope import envelope_report
 
@@ -276,9 +282,10 @@ def _print_envelope(rep: dict) -> None:
 
 
 # ----------------------------------------------------------------------------- reference
-@app.command()
+@app.command(cls=PlainUsageCommand)
 def reference(
     csv: Annotated[Path | None, typer.Argument(
+        metavar="CSV",
         help="Reference table (default: data_samples/cmapss-fd002-operating-points.csv).",
         show_default=False)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
@@ -289,7 +296,9 @@ def reference(
     Each row runs at alt_kft (in thousands of ft), Mach, TRA and the table's T2; theta = 0.
     Ps30 and phi are not compared: in C-MAPSS they break their own definitions.
 
-    Example: hyprog model reference --json
+    \b
+    Example:
+      hyprog model reference --json
     """
     from engine_model.analysis import reference as lib
 

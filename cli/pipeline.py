@@ -8,11 +8,12 @@ from typing import Annotated
 
 import typer
 
-from cli.common import console, echo_json, user_errors
+from cli.common import Quiet, console, echo_json, user_errors
 
 
 def pipeline(
     data: Annotated[Path | None, typer.Argument(
+        metavar="DATA",
         help="Fleet data: parquet directory or N-CMAPSS h5 (default: the committed "
              "data_samples/tiny fleet).")] = None,
     out: Annotated[Path, typer.Option("--out", help="Output folder: report.md, report.html, "
@@ -35,8 +36,7 @@ def pipeline(
     model_effects: Annotated[Path | None, typer.Option(
         "--model-effects", help="Adapted model (hyprog adapt --out FILE) for calibrate and "
         "discover; overrides [calibrate] model_effects.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No progress lines and bars (they "
-                                        "are drawn on a terminal only).")] = False,
+    quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
 ):
     """Calibrate the fleet, look for model discrepancy, train the data-driven and hybrid
@@ -44,11 +44,11 @@ def pipeline(
     self-contained HTML page, metrics.json and PNG figures). A stage whose output exists for
     the same configuration and input is skipped, so a rerun resumes.
 
-    Example: hyprog pipeline --out results   (the committed sample fleet, about 5 minutes)
-
-    Example: hyprog pipeline fleet/ --config pipeline.toml --augment --out results
-
-    Example: hyprog pipeline fleet/ --scheduler tcp://10.0.0.5:8786 --out /shared/results
+    \b
+    Examples:
+      hyprog pipeline --out results   (the packaged sample fleet, about a minute)
+      hyprog pipeline fleet/ --config pipeline.toml --augment --out results
+      hyprog pipeline fleet/ --scheduler tcp://10.0.0.5:8786 --out /shared/results
     """
     from workflows.pipeline import load_config, run_pipeline
     from workflows.pipeline.config import merge
@@ -62,11 +62,13 @@ def pipeline(
         if model_effects is not None:
             cfg["calibrate"]["model_effects"] = str(model_effects)
         err = console(stderr=True)
-        quiet = quiet or as_json or not err.is_terminal  # progress on a terminal only
-        log = (lambda msg: None) if quiet else (lambda msg: err.print(msg, soft_wrap=True))
-        res = run_pipeline(out, cfg, data, quiet=quiet, log=log, inputs=(config,))
+        silent = quiet or as_json or not err.is_terminal  # progress on a terminal only
+        log = (lambda msg: None) if silent else (lambda msg: err.print(msg, soft_wrap=True))
+        res = run_pipeline(out, cfg, data, quiet=silent, log=log, inputs=(config,))
     if as_json:
         echo_json(res)
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     c = console()
     for name, st in res["stages"].items():

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
@@ -17,14 +17,17 @@ from cli.common import Overwrite, Quiet, console, echo_json, parse_units, progre
 
 
 def predict(
-    model_dir: Annotated[Path, typer.Argument(help="Model directory written by hyprog train.")],
-    data: Annotated[Path, typer.Argument(help="Table with the model's input columns.")],
+    model_dir: Annotated[Path, typer.Argument(
+        metavar="MODEL_DIR", help="Model directory written by hyprog train.")],
+    data: Annotated[Path, typer.Argument(
+        metavar="DATA", help="Table with the model's input columns.")],
     out: Annotated[Path, typer.Option(
         "--out", help="Per-sample predictions (.csv, else parquet); the per-cycle table goes "
         "to <stem>.per_cycle<suffix> beside it.")],
     units: Annotated[str | None, typer.Option("--units", help="Units to predict (default: all).")
                      ] = None,
-    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "cpu",
+    device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
+        "--device", help="Where the networks run.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -36,7 +39,9 @@ def predict(
     replaced only when it is a prediction table hyprog wrote (or with --overwrite); never the
     model or the data it reads, never a special file (pipe, device).
 
-    Example: hyprog predict models/cnn new_flights.parquet --out rul.csv
+    \b
+    Example:
+      hyprog predict models/cnn new_flights.parquet --out rul.csv
     """
     from cli.evaluate import load_model_warned
     from engine_model.datasets import read_dataset
@@ -63,6 +68,8 @@ def predict(
            "interval": rul.conformal is not None}
     if as_json:
         echo_json(rep)
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     console().print(f"wrote {out} ({rep['samples']:,} samples) and {rep['per_cycle']} "
                     f"({rep['cycles']} cycles) for unit(s) {', '.join(map(str, rep['units']))}")

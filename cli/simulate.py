@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
 from cli.common import (
     CliError,
     Overwrite,
+    Quiet,
     check_choice,
     console,
     echo_json,
@@ -34,7 +35,8 @@ def simulate(
     effect: Annotated[list[str] | None, typer.Option(
         "--effect", help="NAME[:param=value,...] switched on in the truth (repeatable); "
         "see `hyprog effects`.")] = None,
-    fmt: Annotated[str, typer.Option("--format", help="parquet or h5.")] = "parquet",
+    fmt: Annotated[Literal["parquet", "h5"], typer.Option("--format", help="File format.")
+                   ] = "parquet",
     record: Annotated[str | None, typer.Option(
         "--record", help="above_10kft (N-CMAPSS, default) or all.")] = None,
     overwrite: Overwrite = False,
@@ -45,8 +47,7 @@ def simulate(
     jobs: Annotated[int, typer.Option(
         "--jobs", help="Worker processes, one unit per task (or the workers of the local Dask "
         "cluster with --scheduler local). Same result as one.")] = 1,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar (it is drawn on a "
-                                        "terminal only).")] = False,
+    quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
     """Simulate a fleet to failure and write it (atomically) with its metadata. An existing
@@ -54,16 +55,16 @@ def simulate(
     draws depend only on the seed and the unit, so --units and --scheduler do not change a
     unit's data.
 
-    Example: hyprog simulate --preset tiny --out fleet --seed 0
-
-    Example: hyprog simulate --preset ds02 --out ds02 --scheduler tcp://10.0.0.5:8786
+    \b
+    Examples:
+      hyprog simulate --preset tiny --out fleet --seed 0
+      hyprog simulate --preset ds02 --out ds02 --scheduler tcp://10.0.0.5:8786
     """
     from engine_model import datasets, runtime
     from engine_model.physics.effects import parse_effect_spec
     from engine_model.simulator import fleet
 
     with user_errors():
-        check_choice(fmt, "--format", ("parquet", "h5"))
         if record is not None:
             check_choice(record, "--record", RECORDS)
         if seed < 0:
@@ -86,6 +87,8 @@ def simulate(
                               "dropped": report.dropped[u]} for u in report.rows}}
     if as_json:
         echo_json(rep)
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     console().print(f"wrote {path}: {rep['rows']:,} rows, {len(report.rows)} units in "
                     f"{report.seconds:.1f} s")

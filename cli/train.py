@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 
@@ -16,6 +16,7 @@ from cli.common import (
     parse_units,
     user_errors,
 )
+from prognostics.choices import MODEL_KINDS, NORMALISATIONS, SCHEDULES, VALIDATIONS
 
 INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
                "trend also physics, hybrid-health), groups joined by '+' (w, xs, xs_hat, xv, "
@@ -24,10 +25,11 @@ INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; 
 
 
 def train(
-    features: Annotated[Path, typer.Argument(help="Feature table (parquet from hyprog "
+    features: Annotated[Path, typer.Argument(
+        metavar="FEATURES", help="Feature table (parquet from hyprog "
                                              "calibrate, or any table with its columns).")],
     out: Annotated[Path, typer.Option("--out", help="Model directory to write.")],
-    model: Annotated[str, typer.Option(
+    model: Annotated[Literal[MODEL_KINDS], typer.Option(
         "--model", help="fnn or cnn (the paper's), dcnn (Li, Ding & Sun 2018's deeper CNN "
         "with dropout; window 30), or the flight models: tcn (a temporal CNN over the last "
         "20 flights' means and health coordinates) and trend (the same, learning a correction "
@@ -55,10 +57,10 @@ def train(
     patience: Annotated[int | None, typer.Option(
         "--patience", help="Early-stopping patience in epochs (default: 5, raised to at "
         "least 2,000 optimiser steps).")] = None,
-    schedule: Annotated[str, typer.Option(
+    schedule: Annotated[Literal[SCHEDULES], typer.Option(
         "--schedule", help="plateau (learning rate / 10 when validation stalls for half the "
         "patience) or constant (the paper's).")] = "plateau",
-    normalise: Annotated[str, typer.Option(
+    normalise: Annotated[Literal[NORMALISATIONS], typer.Option(
         "--normalise", help="auto (condition when the table has a 'condition' column with "
         "several conditions, as C-MAPSS FD002/FD004 imports have; else minmax), minmax (the "
         "paper's, over the fleet) or condition (sensors standardised per operating "
@@ -66,7 +68,7 @@ def train(
     keep_constant: Annotated[bool, typer.Option(
         "--keep-constant", help="Keep input columns that are constant over the training rows "
         "(dropped by default).")] = False,
-    validation: Annotated[str, typer.Option(
+    validation: Annotated[Literal[VALIDATIONS], typer.Option(
         "--validation", help="auto (10 % of the training units, whole, when there are at "
         "least two; else 10 % of the flights), flights or units.")] = "auto",
     val_units: Annotated[str | None, typer.Option(
@@ -78,19 +80,21 @@ def train(
         "interval.")] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Interval miscoverage (0.1: 90 %).")
                      ] = 0.1,
-    device: Annotated[str, typer.Option("--device", help="auto, cpu or cuda.")] = "auto",
+    device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
+        "--device", help="Where the networks run.")] = "auto",
     overwrite: Overwrite = False,
     quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
-    """Train the paper's FNN or 1-D CNN, or Li et al.'s DCNN, on a feature table and save it
-    (weights, scaler, inputs, interval) to MODEL_DIR. An existing MODEL_DIR is replaced only
-    when it is a model hyprog wrote that holds nothing else (or with --overwrite); never the
-    FEATURES it reads.
+    """Train a RUL model (the paper's FNN or 1-D CNN, Li et al.'s DCNN, or a flight model) on
+    a feature table and save it (weights, scaler, inputs, interval) to the directory --out.
+    An existing --out is replaced only when it is a model hyprog wrote that holds nothing else
+    (or with --overwrite); never the FEATURES it reads.
 
-    Example: hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
-
-    C-MAPSS: hyprog train fd002-features --model dcnn --max-rul 125 --out models/fd002
+    \b
+    Examples:
+      hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
+      hyprog train fd002-features --model dcnn --max-rul 125 --out models/fd002   (C-MAPSS)
     """
     from engine_model.datasets import read_dataset
     from engine_model.runtime import output_lock
@@ -131,6 +135,8 @@ def train(
            "conformal": None if rul.conformal is None else rul.conformal.to_dict()}
     if as_json:
         echo_json(rep)
+        return
+    if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     c = console()
     c.print(f"{rep['model'].upper()} on {len(rep['columns'])} inputs ({rep['inputs']}), window "

@@ -8,6 +8,7 @@ One job per module:
 - :mod:`.windows`      sliding windows as strided views (no per-window copy)
 - :mod:`.flights`      flight tables: per-flight means and the health coordinates of theta_hat
 - :mod:`.models`       the paper's FNN and 1-D CNN, Li et al.'s DCNN, the flight models' TCN
+- :mod:`.choices`      the names a run chooses from (models, schedules, ...), import-free
 - :mod:`.train_config` :class:`~.train_config.TrainConfig`, what defines a training run
 - :mod:`.training`     the training loop of one network (AMSGrad, early stopping, seeds)
 - :mod:`.ensemble`     a trained model (one network per seed), :func:`~.ensemble.fit`, predictions

@@ -130,6 +130,14 @@ class RulModel:
             preds = np.stack([predict_windows(net, win, dev,
                                               progress=None if progress is None else step)
                               for net in nets])
+        bad = ~np.isfinite(preds).all(axis=0)
+        if bad.any():  # finite inputs so far outside the training range that float32 overflows
+            i = int(win.rows[np.flatnonzero(bad)[0]])
+            j = int(np.argmax(np.abs(x[i])))
+            raise InputError(f"{source}: unit {int(unit[i])}, cycle {int(frame['cycle'].iloc[i])}"
+                             f": the prediction is not finite; column {self.columns[j]} = "
+                             f"{frame[self.columns[j]].iloc[i]:g} lies far outside the "
+                             "training range")
         keep = [c for c in ("unit", "cycle", "t", TARGET, "hs") if c in frame.columns]
         out = frame[keep].iloc[win.rows].reset_index(drop=True)
         mean = preds.mean(axis=0)
@@ -152,6 +160,8 @@ class RulModel:
         (``progress`` as in :meth:`predict`)."""
         if TARGET not in df.columns:
             raise InputError(f"{source}: no {TARGET} column to evaluate against")
+        rows = df[df["unit"].isin([int(u) for u in units])] if units is not None else df
+        check_table(rows, [], source, target=True)  # the truth: finite, not negative
         pred = self.predict(df, units, device, source, progress)
         return evaluate_predictions(pred), pred
 

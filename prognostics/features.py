@@ -169,22 +169,45 @@ def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table",
 
 def check_table(df: pd.DataFrame, columns: Sequence[str], source: str = "table",
                 target: bool = True) -> None:
-    """``df`` has ``unit``, ``cycle``, the input ``columns`` (and ``RUL`` when ``target``), all
-    finite; the first offending unit and column are named."""
+    """``df`` has ``unit``, ``cycle``, the input ``columns`` (and ``RUL`` when ``target``),
+    all finite and within a 32-bit float's range (the networks compute in float32), ``RUL``
+    not negative, and no two rows of a unit at the same ``cycle`` and ``t`` (when the table
+    has ``t``); the first offending unit, cycle and column are named."""
     need = [*KEYS, *columns, *([TARGET] if target else [])]
     missing = [c for c in need if c not in df.columns]
     if missing:
         raise InputError(f"{source}: missing column(s) {', '.join(missing)}")
+
+    def where(i: int) -> str:
+        return f"{source}: unit {int(df['unit'].iloc[i])}, cycle {int(df['cycle'].iloc[i])}"
+
+    big = float(np.finfo(np.float32).max)
     for c in [*columns, *([TARGET] if target else [])]:
         v = df[c].to_numpy()
         if not np.issubdtype(v.dtype, np.number):
             raise InputError(f"{source}: column {c} is not numeric ({v.dtype})")
-        bad = ~np.isfinite(v.astype(float, copy=False))
+        v = v.astype(float, copy=False)
+        bad = ~np.isfinite(v)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise InputError(f"{source}: unit {int(df['unit'].iloc[i])}, cycle "
-                             f"{int(df['cycle'].iloc[i])}, column {c}: value is {v[i]} "
-                             "(NaN or infinite)")
+            raise InputError(f"{where(i)}, column {c}: value is {v[i]} (NaN or infinite)")
+        bad = np.abs(v) > big
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{where(i)}, column {c}: value {v[i]:g} is beyond a 32-bit "
+                             "float's range (the networks compute in float32)")
+    if target:
+        neg = df[TARGET].to_numpy(float) < 0
+        if neg.any():
+            i = int(np.flatnonzero(neg)[0])
+            raise InputError(f"{where(i)}, column {TARGET}: value {df[TARGET].iloc[i]:g} is "
+                             "negative (the remaining useful life counts cycles to failure)")
+    if "t" in df.columns:
+        dup = df.duplicated(["unit", "cycle", "t"], keep=False).to_numpy()
+        if dup.any():
+            i = int(np.flatnonzero(dup)[0])
+            raise InputError(f"{where(i)}: {int(dup.sum())} rows share their time stamp t = "
+                             f"{df['t'].iloc[i]:g} with another row (duplicated samples)")
 
 
 def sort_table(df: pd.DataFrame) -> pd.DataFrame:

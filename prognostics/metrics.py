@@ -34,6 +34,23 @@ and near the end, **RUL <= 30** cycles. Before onset θ says little about the en
 an overall figure mixes a part no predictor can do well with the part that matters; the
 phases keep them apart. The onset phases need an ``hs`` column in the prediction frame.
 
+Accuracy over life (issue 31; Saxena, Celaya, Saha, Saha & Goebel, "Metrics for offline
+evaluation of prognostic performance", IJPHM 1(1), 2010, Sec. 5; NASA ProgPy's
+``alpha_lambda``). For one unit with first prediction at cycle ``t_P`` and failure at
+``t_EOL``, the **λ-point** is ``t_λ = t_P + λ (t_EOL - t_P)``, taken at the first predicted
+cycle at or after it (a λ-point after the unit's last observed cycle is not observed):
+
+- **α-λ accuracy**: the per-cycle mean ``ŷ(t_λ)`` lies within ``±α`` of the true RUL,
+  ``(1 - α) y(t_λ) <= ŷ(t_λ) <= (1 + α) y(t_λ)``; reported per unit and as the fraction of
+  units that meet it, at ``α = 0.2`` (ProgPy's example) and ``λ = 0.25, 0.5, 0.75``.
+- **Relative accuracy** ``RA(λ) = 1 - |y(t_λ) - ŷ(t_λ)| / y(t_λ)`` (1 is perfect; it goes
+  negative when the error exceeds the true RUL); per unit and the mean over units.
+
+**Error against true RUL** (the box plots of ceruleo's ``boxplot_errors_wrt_RUL``): the
+samples' ``Δ`` grouped by bins of true RUL, ``[0, b), [b, 2b), ...``, with the bin width
+``b`` the first of 1, 2, 5, 10, 20, 25, 50, 100, ... cycles that gives at most 8 bins; per
+bin ``n``, mean, median, quartiles and the 5 / 95 % quantiles of ``Δ``.
+
 Protocols
 ---------
 ``samples``: every predicted sample of the test units (the paper's, Sec. 4.5).
@@ -55,6 +72,9 @@ LATE_A = 10.0
 EARLY_A = 13.0
 HORIZON_TOL = 5.0
 END_PHASE_RUL = 30.0
+ALPHA = 0.2
+LAMBDAS = (0.25, 0.5, 0.75)
+MAX_RUL_BINS = 8
 
 
 def rmse(y_true, y_pred) -> float:
@@ -124,6 +144,72 @@ def prediction_horizon(cycles, y_true, y_mean, tol: float = HORIZON_TOL) -> floa
     return float(t_eol - first)
 
 
+def lambda_accuracy(pc: pd.DataFrame, alpha: float = ALPHA,
+                    lambdas: tuple[float, ...] = LAMBDAS) -> dict:
+    """α-λ accuracy and relative accuracy at the λ-points of each unit (module docstring),
+    from a per-cycle table (:func:`per_cycle`, with ``RUL``).
+
+    Returns ``{"alpha", "lambdas", "units": {u: {λ: {"cycle", "RUL", "RUL_pred", "within",
+    "relative_accuracy"} or None}}, "fraction_within": {λ: f}, "relative_accuracy": {λ: m}}``,
+    the last two over the units where the λ-point is observed (NaN when none is). λ keys are
+    strings (``"0.5"``) so that the dict is JSON as it is.
+    """
+    units: dict[int, dict] = {}
+    for u, g in pc.groupby("unit"):
+        c = g["cycle"].to_numpy(float)
+        y, m = g["RUL"].to_numpy(float), g["mean"].to_numpy(float)
+        t_p, t_eol = c[0], c[-1] + y[-1]
+        row = {}
+        for lam in lambdas:
+            k = int(np.searchsorted(c, t_p + lam * (t_eol - t_p) - 1e-9))
+            if k >= len(c) or y[k] <= 0:
+                row[f"{lam:g}"] = None
+                continue
+            row[f"{lam:g}"] = {"cycle": int(c[k]), "RUL": float(y[k]), "RUL_pred": float(m[k]),
+                               "within": bool(abs(m[k] - y[k]) <= alpha * y[k]),
+                               "relative_accuracy": float(1.0 - abs(y[k] - m[k]) / y[k])}
+        units[int(u)] = row
+    fraction, ra = {}, {}
+    for lam in lambdas:
+        seen = [r[f"{lam:g}"] for r in units.values() if r[f"{lam:g}"] is not None]
+        fraction[f"{lam:g}"] = float(np.mean([e["within"] for e in seen])) if seen else \
+            float("nan")
+        ra[f"{lam:g}"] = float(np.mean([e["relative_accuracy"] for e in seen])) if seen else \
+            float("nan")
+    return {"alpha": alpha, "lambdas": list(lambdas), "units": units,
+            "fraction_within": fraction, "relative_accuracy": ra}
+
+
+def rul_bin_width(max_rul: float, max_bins: int = MAX_RUL_BINS) -> float:
+    """The first of 1, 2, 5, 10, 20, 25, 50, 100, 200, 250, 500, ... cycles that cuts
+    ``[0, max_rul]`` into at most ``max_bins`` bins (module docstring)."""
+    decade = 1.0
+    while True:
+        for f in (1.0, 2.0, 2.5, 5.0):
+            b = f * decade
+            if (f != 2.5 or decade >= 10) and np.floor(max_rul / b) + 1 <= max_bins:
+                return b
+        decade *= 10.0
+
+
+def error_by_rul(pred: pd.DataFrame, width: float | None = None) -> list[dict]:
+    """``Δ = RUL - RUL_pred`` of every sample grouped by bins of true RUL (module docstring):
+    one dict per non-empty bin, ``{"lo", "hi", "n", "mean", "median", "q05", "q25", "q75",
+    "q95"}``, in order of RUL."""
+    y = pred["RUL"].to_numpy(float)
+    d = y - pred["RUL_pred"].to_numpy(float)
+    b = width if width is not None else rul_bin_width(float(y.max()) if y.size else 0.0)
+    k = np.floor(y / b).astype(int)
+    out = []
+    for i in np.unique(k):
+        e = d[k == i]
+        q05, q25, q50, q75, q95 = np.quantile(e, [0.05, 0.25, 0.5, 0.75, 0.95])
+        out.append({"lo": float(i * b), "hi": float((i + 1) * b), "n": int(e.size),
+                    "mean": float(e.mean()), "median": float(q50), "q05": float(q05),
+                    "q25": float(q25), "q75": float(q75), "q95": float(q95)})
+    return out
+
+
 def _sample_metrics(df: pd.DataFrame) -> dict:
     out = {"n": int(len(df)), "rmse": rmse(df["RUL"], df["RUL_pred"]),
            "score": nasa_score(df["RUL"], df["RUL_pred"])}
@@ -151,7 +237,8 @@ def evaluate_predictions(pred: pd.DataFrame) -> dict:
 
     Returns ``{"samples": {"overall": m, "units": {u: m}, "phases": {phase: m}}, "last":
     {"overall": m, "units": {u: {"cycle", "RUL", "RUL_pred", "delta"}}}, "horizon":
-    {"units": {u: h}, "mean": h}}`` (phases: :func:`phase_metrics`) where ``m`` holds
+    {"units": {u: h}, "mean": h}, "alpha_lambda": ..., "error_by_rul": [...]}`` (phases:
+    :func:`phase_metrics`; :func:`lambda_accuracy`; :func:`error_by_rul`) where ``m`` holds
     ``n``, ``rmse``, ``score`` (and ``coverage``, ``width`` with an interval) and
     ``delta = RUL - RUL_pred`` (the module's ``Δ``).
     """
@@ -178,4 +265,5 @@ def evaluate_predictions(pred: pd.DataFrame) -> dict:
     horizon = {int(u): prediction_horizon(g["cycle"], g["RUL"], g["mean"])
                for u, g in pc.groupby("unit")}
     return {"samples": samples, "last": {"overall": last_overall, "units": last_units},
-            "horizon": {"units": horizon, "mean": float(np.mean(list(horizon.values())))}}
+            "horizon": {"units": horizon, "mean": float(np.mean(list(horizon.values())))},
+            "alpha_lambda": lambda_accuracy(pc), "error_by_rul": error_by_rul(pred)}

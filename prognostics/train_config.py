@@ -55,14 +55,17 @@ from dataclasses import asdict, dataclass, replace
 
 from engine_model.validation import InputError
 
-MODEL_KINDS = ("fnn", "cnn", "dcnn", "tcn", "trend")
-FLIGHT_MODELS = ("tcn", "trend")  # read a flight table (module docstring)
+from .choices import (  # noqa: F401  (re-exported: the names every caller imports from here)
+    FLIGHT_MODELS,
+    MODEL_KINDS,
+    NORMALISATIONS,
+    SCHEDULES,
+    VALIDATIONS,
+)
+
 DEFAULT_EPOCHS = {"fnn": 60, "cnn": 30, "dcnn": 250,  # dcnn: Li, Ding & Sun 2018
                   "tcn": 300, "trend": 300}
 DEFAULT_WINDOW = {"fnn": 1, "cnn": 50, "dcnn": 30, "tcn": 20, "trend": 20}
-SCHEDULES = ("plateau", "constant")
-NORMALISATIONS = ("auto", "minmax", "condition")
-VALIDATIONS = ("auto", "flights", "units")
 PAPER_BATCH, PAPER_PATIENCE = 1024, 5
 MIN_BATCHES = 16
 MIN_BATCH = 32

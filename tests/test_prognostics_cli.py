@@ -344,3 +344,70 @@ def test_train_names_bad_unit_lists_in_the_metadata(runner, tmp_path):
     path = write_parquet(df, tmp_path / "f.parquet", {**meta, "dev_units": "abc"})
     r = run(runner, "train", path, "--model", "fnn", *FAST, "--out", tmp_path / "m")
     assert_user_error(r, "metadata dev_units must be a list of unit numbers")
+
+
+def _edited(features_parquet, tmp_path, edit):
+    df, meta = read_dataset(features_parquet)
+    df = df.copy()
+    edit(df)
+    return write_parquet(df, tmp_path / "edited.parquet", meta)
+
+
+def _set(column, value, unit=5, row=10):
+    def edit(df):
+        i = df.index[df.unit == unit][row]
+        df[column] = df[column].astype(float)
+        df.loc[i, column] = value
+    return edit
+
+
+@pytest.mark.parametrize("edit, fragments", [
+    (_set("RUL", np.nan), ["unit 5", "column RUL", "NaN"]),
+    (_set("RUL", -3.0), ["unit 5", "column RUL", "-3", "negative"]),
+    (_set("T30", 1e300), ["unit 5", "column T30", "1e+300", "32-bit"]),
+], ids=["nan-rul", "negative-rul", "huge-input"])
+def test_evaluate_refuses_bad_values_in_a_test_unit(runner, model_dir, features_parquet,
+                                                    tmp_path, edit, fragments):
+    """Issue 31: these gave exit 0 with RMSE nan (JSON null), a raw numpy RuntimeWarning, or
+    a negative truth accepted; now one error line naming the unit and column."""
+    bad = _edited(features_parquet, tmp_path, edit)
+    r = run(runner, "evaluate", model_dir, bad, "--json")
+    assert_user_error(r, "edited.parquet", *fragments)
+    assert "RuntimeWarning" not in r.stderr
+
+
+def test_evaluate_refuses_duplicated_time_stamps(runner, model_dir, features_parquet,
+                                                 tmp_path):
+    df, meta = read_dataset(features_parquet)
+    dup = pd.concat([df, df[df.unit == 6].iloc[[3]]], ignore_index=True)
+    bad = write_parquet(dup, tmp_path / "dup.parquet", meta)
+    assert_user_error(run(runner, "evaluate", model_dir, bad), "dup.parquet", "unit 6",
+                      "duplicated")
+
+
+def test_train_refuses_a_negative_rul(runner, features_parquet, tmp_path):
+    bad = _edited(features_parquet, tmp_path, _set("RUL", -1.0, unit=1))
+    out = tmp_path / "m"
+    r = run(runner, "train", bad, "--model", "fnn", *FAST, "--out", out)
+    assert_user_error(r, "unit 1", "negative")
+    assert not out.exists()
+
+
+def test_evaluate_reports_accuracy_over_life_and_error_by_rul(runner, model_dir,
+                                                              features_parquet):
+    m = json.loads(ok(run(runner, "evaluate", model_dir, features_parquet, "--json")).stdout)
+    al = m["alpha_lambda"]
+    assert al["alpha"] == 0.2 and al["lambdas"] == [0.25, 0.5, 0.75]
+    assert set(al["units"]) == {"5", "6"}
+    for lam in ("0.25", "0.5", "0.75"):
+        e = al["units"]["5"][lam]
+        assert e["within"] == (abs(e["RUL_pred"] - e["RUL"]) <= 0.2 * e["RUL"])
+        assert e["relative_accuracy"] == pytest.approx(
+            1 - abs(e["RUL"] - e["RUL_pred"]) / e["RUL"])
+    bins = m["error_by_rul"]
+    assert sum(b["n"] for b in bins) == m["samples"]["overall"]["n"]
+    assert all(b["q05"] <= b["q25"] <= b["median"] <= b["q75"] <= b["q95"] for b in bins)
+    table = ok(run(runner, "evaluate", model_dir, features_parquet)).stdout
+    assert "relative accuracy" in table and "true RUL" in table
+    # a pipe is not a terminal: the table is as wide as it needs, headers whole
+    assert "last cycle" in table and "horizon" in table and "…" not in table

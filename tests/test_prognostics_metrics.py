@@ -178,3 +178,49 @@ def test_conformal_interval_is_clipped_at_zero_and_round_trips():
     assert SplitConformal.from_dict(conf.to_dict()) == conf
     inf = SplitConformal.calibrate([1.0], [0.0], 0.1)
     assert SplitConformal.from_dict(inf.to_dict()).quantile == math.inf
+
+
+def test_alpha_lambda_and_relative_accuracy_by_hand():
+    """One unit observed at cycles 1..11, failing at 11 (t_P = 1, t_EOL = 11): the λ-points
+    0.25, 0.5, 0.75 are cycles 3.5 -> 4, 6 and 8.5 -> 9 (the first predicted cycle at or
+    after each)."""
+    from prognostics.metrics import lambda_accuracy
+
+    c = np.arange(1, 12)
+    y = 11.0 - c
+    m = y.copy()
+    m[c == 4] = y[c == 4] * 1.1  # inside ±20 %
+    m[c == 6] = y[c == 6] * 1.5  # outside
+    m[c == 9] = 0.0              # outside, RA = 0
+    pc = pd.DataFrame({"unit": 1, "cycle": c, "RUL": y, "mean": m})
+    r = lambda_accuracy(pc)
+    u = r["units"][1]
+    assert [u[k]["cycle"] for k in ("0.25", "0.5", "0.75")] == [4, 6, 9]
+    assert [u[k]["within"] for k in ("0.25", "0.5", "0.75")] == [True, False, False]
+    assert u["0.25"]["relative_accuracy"] == pytest.approx(0.9)
+    assert u["0.5"]["relative_accuracy"] == pytest.approx(0.5)
+    assert u["0.75"]["relative_accuracy"] == pytest.approx(0.0)
+    assert r["fraction_within"] == {"0.25": 1.0, "0.5": 0.0, "0.75": 0.0}
+
+
+def test_a_lambda_point_after_the_last_observed_cycle_is_not_observed():
+    from prognostics.metrics import lambda_accuracy
+
+    # truncated at cycle 5 with 20 cycles left: t_EOL = 25, λ = 0.5 -> cycle 13, unseen
+    pc = pd.DataFrame({"unit": 7, "cycle": np.arange(1, 6), "RUL": 24.0 - np.arange(5),
+                       "mean": 24.0 - np.arange(5)})
+    r = lambda_accuracy(pc)
+    assert r["units"][7]["0.5"] is None and r["units"][7]["0.75"] is None
+    assert np.isnan(r["fraction_within"]["0.5"])
+
+
+def test_error_by_rul_bins():
+    from prognostics.metrics import error_by_rul, rul_bin_width
+
+    assert [rul_bin_width(m) for m in (5, 9, 40, 125, 200, 1000)] == [1, 2, 10, 20, 50, 200]
+    y = np.arange(0.0, 100.0)
+    pred = pd.DataFrame({"RUL": y, "RUL_pred": y - np.where(y < 50, 1.0, -2.0)})
+    bins = error_by_rul(pred)
+    assert [(b["lo"], b["hi"]) for b in bins] == [(k * 20.0, (k + 1) * 20.0) for k in range(5)]
+    assert [b["n"] for b in bins] == [20] * 5
+    assert bins[0]["median"] == 1.0 and bins[-1]["median"] == -2.0
