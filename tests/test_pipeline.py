@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from html.parser import HTMLParser
 
 import pytest
 from typer.testing import CliRunner
@@ -33,7 +34,9 @@ epochs = 3
 """
 REPORT_FILES = ("report.md", "report.html", "metrics.json", "figures/theta.png",
                 "figures/rul_data-driven.png", "figures/rul_hybrid.png",
-                "figures/training.png", "figures/discrepancy.png")
+                "figures/training.png", "figures/discrepancy.png", "figures/error_by_rul.png")
+SECTIONS = ("Summary", "Fleet", "Calibration", "Model discrepancy", "Remaining useful life",
+            "Timings", "Configuration", "Versions")
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -77,7 +80,7 @@ def test_run_writes_the_report(first_run):
                     "## Versions", "figures/rul_hybrid.png", "no conformal units"):
         assert section in md, section
     page = (out / "report.html").read_text()
-    assert page.count("data:image/png;base64,") == 5 and 'src="figures' not in page
+    assert page.count("data:image/png;base64,") == 6 and 'src="figures' not in page
     m = json.loads((out / "metrics.json").read_text())
     assert m["seed"] == 0 and m["config"]["train"]["epochs"] == 3
     assert set(m["rul"]) == {"data-driven", "hybrid"}
@@ -89,6 +92,58 @@ def test_run_writes_the_report(first_run):
                                          "unknown effect", "ambiguous")
     assert m["versions"]["hyprog"] and m["versions"]["torch"]
     assert "seconds" not in json.dumps(m)  # timings live in report.md and run.json
+
+
+class _Page(HTMLParser):
+    """The headings (in order) and table rows of an HTML page."""
+
+    def __init__(self):
+        super().__init__()
+        self.h2, self.rows, self._tag, self._row = [], [], None, None
+
+    def handle_starttag(self, tag, attrs):
+        self._tag = tag
+        if tag == "tr":
+            self._row = []
+
+    def handle_endtag(self, tag):
+        if tag == "tr":
+            self.rows.append(self._row)
+        self._tag = None
+
+    def handle_data(self, data):
+        if self._tag == "h2":
+            self.h2.append(data)
+        elif self._tag in ("td", "th") and self._row is not None:
+            self._row.append(data)
+
+
+def test_the_html_report_opens_with_its_summary(first_run):
+    """Issue 31: rendered HTML, parsed: the summary first, then the details in order; the
+    summary's row for the test unit; the report's own time in the timings; no "all" row
+    repeating the single test unit; figures at 150 dpi with their axes labelled."""
+    from PIL import Image
+
+    out, _, _ = first_run
+    page = _Page()
+    page.feed((out / "report.html").read_text())
+    assert tuple(page.h2) == SECTIONS
+    m = json.loads((out / "metrics.json").read_text())
+    for inputs in ("data-driven", "hybrid"):
+        last = m["rul"][inputs]["last"]["units"]["4"]
+        row = next(r for r in page.rows if r[:2] == ["4", inputs])
+        assert row[2] == str(last["cycle"]) and float(row[3]) == pytest.approx(
+            last["RUL_pred"], rel=5e-3)
+    assert any(r[0] == "report" and r[1] == "done" for r in page.rows)
+    assert not any(len(r) > 1 and r[1] == "all" for r in page.rows)
+    assert any(r[:2] == ["hybrid", "0.5"] for r in page.rows)  # α-λ at λ = 0.5
+    md = (out / "report.md").read_text()
+    assert md.index("## Summary") < md.index("## Fleet")
+    assert "Model discrepancy: " in md and "Calibration (ukf)" in md
+    for f in REPORT_FILES[3:]:
+        dpi = Image.open(out / f).info["dpi"]
+        assert dpi[0] == pytest.approx(150, abs=1), (f, dpi)
+    assert Image.open(out / "figures/theta.png").size[0] >= 1280
 
 
 def test_rerun_skips_every_stage(first_run, config):

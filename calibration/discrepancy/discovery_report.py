@@ -137,8 +137,8 @@ def markdown(d) -> str:
                          f"{_fmt(c['statistic'])} | {c['df']} | {_p(c['p_value'])} | {rt} | "
                          f"{md} |")
         lines.append("")
-    lines.append("Figure: residuals.png (residual against its driving variable, before and "
-                 "after).")
+    lines.append("Figure: residuals.png (every channel's residual against the variable it "
+                 "follows most, before and after).")
     return "\n".join(lines) + "\n"
 
 
@@ -159,7 +159,31 @@ def _panels(d) -> list[tuple[str, str]]:
     return out[:4]
 
 
+#: Each driver's axis: the factor from :func:`.unknown.basis`'s scaled column back to its
+#: physical unit, and the label.
+DRIVER_AXES = {"alt": (1e4, "altitude [ft]"), "Mach": (1.0, "Mach [-]"),
+               "TRA": (1.0, "throttle TRA [%]"), "T2": (100.0, "T2 [°R]"),
+               "t_flight": (1.0, "time since take-off [h]"), "cycle": (1.0, "flight cycle")}
+N_BINS = 12
+
+
+def _binned(x: np.ndarray, e: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per bin of ``x``: its centre, the mean of ``e`` and its 5 / 95 % quantiles (NaN in an
+    empty bin)."""
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    stats = np.full((len(edges) - 1, 3), np.nan)
+    for i in range(len(edges) - 1):
+        v = e[idx == i]
+        if v.size:
+            stats[i] = v.mean(), *np.quantile(v, [0.05, 0.95])
+    return 0.5 * (edges[1:] + edges[:-1]), stats[:, 0], stats[:, 1], stats[:, 2]
+
+
 def plot(d, path: Path) -> None:
+    """Every sensor channel's whitened residual (in noise std) against the driving variable it
+    follows most (of :data:`DRIVERS`, by correlation before), before and after: per bin of
+    that variable the mean (line) and the 5-95 % range (band), so that neither hides the
+    other. A channel named by the findings (:func:`_panels`) has it in its title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -167,39 +191,45 @@ def plot(d, path: Path) -> None:
 
     problem, before, after = d.plots["problem"], d.plots["before"], d.plots["after"]
     sensors = list(problem.sensors)
-    panels = _panels(d)
+    roles = dict(_panels(d))
     X = np.vstack([basis(u.series.w, u.frame["t"].to_numpy(float) if "t" in u.frame else None,
                          u.cyc, u.cycle) for u in problem.units])
     ok = np.concatenate([a & b for a, b in zip(before.lin.ok, after.lin.ok, strict=True)])
     eb = np.vstack(before.lin.e)[ok]
     ea = np.vstack(after.lin.e)[ok]
     X = X[ok]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.0), squeeze=False)
-    for ax, (ch, title) in zip(axes[0], panels, strict=True):
-        j = sensors.index(ch)
-        cols = [BASIS_NAMES.index(v) for v in DRIVERS]
-        corr = [abs(np.corrcoef(X[:, c], eb[:, j])[0, 1]) if X[:, c].std() > 0 else 0.0
+    ncols = min(4, len(sensors))
+    nrows = -(-len(sensors) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.0 * ncols, 3.0 * nrows), squeeze=False,
+                             layout="constrained")
+    cols = [BASIS_NAMES.index(v) for v in DRIVERS]
+    for k, ax in enumerate(axes.flat):
+        if k >= len(sensors):
+            ax.set_visible(False)
+            continue
+        ch = sensors[k]
+        corr = [abs(np.corrcoef(X[:, c], eb[:, k])[0, 1]) if X[:, c].std() > 0 else 0.0
                 for c in cols]
-        c = cols[int(np.nanargmax(corr))]
-        xv = X[:, c]
-        ax.scatter(xv, eb[:, j], s=2, color="0.6", alpha=0.4, label="before", rasterized=True)
-        ax.scatter(xv, ea[:, j], s=2, color="tab:blue", alpha=0.4, label="after",
-                   rasterized=True)
-        edges = np.unique(np.quantile(xv, np.linspace(0, 1, 13)))
-        if len(edges) > 2:
-            idx = np.clip(np.searchsorted(edges, xv, side="right") - 1, 0, len(edges) - 2)
-            mid = 0.5 * (edges[1:] + edges[:-1])
-            for e, col in ((eb[:, j], "black"), (ea[:, j], "tab:blue")):
-                mb = np.array([e[idx == i].mean() if np.any(idx == i) else np.nan
-                               for i in range(len(mid))])
-                ax.plot(mid, mb, color=col, lw=2)
+        name = DRIVERS[int(np.nanargmax(corr))]
+        factor, label = DRIVER_AXES[name]
+        xv = X[:, BASIS_NAMES.index(name)] * factor
+        edges = np.unique(np.quantile(xv, np.linspace(0, 1, N_BINS + 1)))
+        if len(edges) < 2:
+            edges = np.array([xv.min() - 0.5, xv.max() + 0.5])
+        for e, colour, what in ((eb[:, k], "0.35", "before"), (ea[:, k], "tab:blue", "after")):
+            mid, mean, lo, hi = _binned(xv, e, edges)
+            ax.fill_between(mid, lo, hi, color=colour, alpha=0.2, lw=0)
+            ax.plot(mid, mean, "o-", color=colour, ms=3, lw=1.6,
+                    label=f"{what}: bin mean, 5-95 %")
         ax.axhline(0, color="k", lw=0.5)
-        ax.set_xlabel(BASIS_NAMES[c])
-        ax.set_ylabel(f"{ch} residual [noise std]")
-        ax.set_title(f"{ch}: {title}")
-        ax.legend(loc="best", markerscale=4, fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+        ax.set_xlabel(label)
+        ax.set_ylabel("residual [noise std]")
+        ax.set_title(ch + (f": {roles[ch]}" if ch in roles else ""), fontsize=10)
+        ax.grid(alpha=0.3)
+    axes.flat[0].legend(loc="best", fontsize=7)
+    fig.suptitle("whitened residuals before and after the added effects" if d.found else
+                 "whitened residuals (no effect added: after = before)")
+    fig.savefig(path, dpi=150)
     plt.close(fig)
 
 

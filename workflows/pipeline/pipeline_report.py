@@ -1,13 +1,17 @@
 """The pipeline's report: ``report.md``, ``report.html`` (self-contained), ``metrics.json`` and
 the PNG figures in ``OUT/figures``, all written atomically.
 
-Sections: the fleet (units, split, cycles, end of life, onset of abnormal degradation), the
+Sections: a summary a reader can act on (per test unit and input set: the predicted RUL at the
+last observed cycle with its interval and, where known, the true RUL; the discrepancy verdict;
+the calibration's quality), then the details: the fleet (units, split, cycles, end of life,
+onset of abnormal degradation), the
 calibration's accuracy against the true theta where the data carry it (RMSE, bias and the
 fraction of samples whose truth lies inside theta_hat ± 1.96 std), theta_hat trajectories
 (per-cycle means, truth dashed), the discrepancy findings before and after, the RUL metrics per
 test unit of every input set (both protocols of :mod:`prognostics.metrics`), predicted against
-true RUL with the interval, training curves, the timings, the configuration, the versions and
-the seed.
+true RUL with the interval, accuracy over life (α-λ, relative accuracy) and the error against
+true RUL (box plots), training curves, the timings (the report's own up to its writing), the
+configuration, the versions and the seed. The "all" rows appear only with several test units.
 
 ``metrics.json`` holds every number of the report except the timings and the paths, so two runs
 with the same configuration, data and seed give identical files (the timings are in
@@ -19,6 +23,7 @@ serial run writes.
 from __future__ import annotations
 
 import platform
+import time
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 
@@ -165,6 +170,48 @@ def _discovery_blocks(d: dict | None, augmented: list, png: Path | None) -> list
     return out
 
 
+def _summary_blocks(ev: dict, acc: dict | None, cal: dict, disc: dict | None,
+                    augmented: list) -> list:
+    """What a reader acts on, before the details: per test unit and input set the RUL at the
+    last observed cycle (with its interval), the discrepancy verdict, the calibration."""
+    interval = any("lower" in u for e in ev.values()
+                   for u in e["metrics"]["last"]["units"].values())
+    rows = []
+    for inputs, e in ev.items():
+        for u, lu in e["metrics"]["last"]["units"].items():
+            band = f"{_f(lu['lower'])} to {_f(lu['upper'])}" if "lower" in lu else "–"
+            rows.append([u, inputs, lu["cycle"], _f(lu["RUL_pred"]),
+                         *([band] if interval else []), _f(lu["RUL"]),
+                         _f(-lu["delta"], "+.3g")])
+    head = ["unit", "inputs", "last cycle", "predicted RUL",
+            *(["interval"] if interval else []), "true RUL", "predicted - true"]
+    if disc is None:
+        verdict = "Model discrepancy: not checked ([discover] enabled = false)."
+    else:
+        added = (f" Added to the model: {', '.join(augmented)}." if augmented else
+                 " Nothing was added to the model" + (" (--augment not given)."
+                                                      if disc["found"] else "."))
+        verdict = (f"Model discrepancy: {disc['verdict']}; residual chi^2 per degree of "
+                   f"freedom {_f(disc['before']['chi2_per_dof'], '.4g')} before, "
+                   f"{_f(disc['after']['chi2_per_dof'], '.4g')} after.{added}")
+    if acc is None:
+        quality = ("Calibration: no true theta in the data, so its accuracy is not known"
+                   + (f"; warnings: {'; '.join(cal['warnings'])}." if cal["warnings"] else
+                      "; no warnings."))
+    else:
+        worst = max(acc["overall"], key=lambda q: acc["overall"][q]["rmse"])
+        cov = [v["coverage95"] for v in acc["overall"].values() if "coverage95" in v]
+        quality = (f"Calibration ({cal['method']}): the largest error is {worst}'s, RMSE "
+                   f"{_f(acc['overall'][worst]['rmse'])}"
+                   + (f"; the ±1.96 σ band holds the truth for {min(cov):.1%} to "
+                      f"{max(cov):.1%} of the samples (nominal 95 %)" if cov else "")
+                   + (f"; warnings: {'; '.join(cal['warnings'])}." if cal["warnings"] else "."))
+    return [("h", 2, "Summary"),
+            ("p", "Remaining useful life of each test unit at its last observed cycle, in "
+                  "cycles" + (" (interval: split-conformal)" if interval else "") + "."),
+            ("table", head, rows), ("p", verdict), ("p", quality)]
+
+
 def _rul_blocks(ev: dict, figs: dict, trained: dict) -> list:
     out = [("h", 2, "Remaining useful life")]
     interval = any("coverage" in e["metrics"]["samples"]["overall"] for e in ev.values())
@@ -180,15 +227,35 @@ def _rul_blocks(ev: dict, figs: dict, trained: dict) -> list:
                          _f(lu["RUL"]), _f(lu["RUL_pred"]), _f(hz["units"][u]),
                          *([_f(v.get("coverage"), ".3f"), _f(v.get("width"))]
                            if interval else [])])
-        o = s["overall"]
-        rows.append([inputs, "all", o["n"], _f(o["rmse"]), _f(o["score"], ".4g"), "", "", "",
-                     _f(hz["mean"]), *([_f(o.get("coverage"), ".3f"), _f(o.get("width"))]
-                                       if interval else [])])
+        if len(s["units"]) > 1:
+            o = s["overall"]
+            rows.append([inputs, "all", o["n"], _f(o["rmse"]), _f(o["score"], ".4g"), "", "",
+                         "", _f(hz["mean"]), *([_f(o.get("coverage"), ".3f"),
+                                                _f(o.get("width"))] if interval else [])])
     out += [("p", "Every test sample (the paper's protocol) and the last observed cycle "
                   "(C-MAPSS's); NASA score with delta = true - predicted; horizon: cycles "
                   "before failure from which the per-cycle mean stays within ±5 cycles."),
             ("table", head, rows)]
+    life = []
+    for inputs, e in ev.items():
+        al = e["metrics"]["alpha_lambda"]
+        for lam in al["lambdas"]:
+            k = f"{lam:g}"
+            seen = [r[k] for r in al["units"].values() if r[k] is not None]
+            life.append([inputs, k, f"{sum(x['within'] for x in seen)} of {len(seen)}",
+                         _f(al["relative_accuracy"][k], ".3f")])
+    alpha = next(iter(ev.values()))["metrics"]["alpha_lambda"]["alpha"]
+    out += [("p", "Accuracy over life (Saxena et al. 2010): at t_P + λ (t_EOL - t_P), λ a "
+                  "fraction of the unit's life from its first prediction, whether the "
+                  f"per-cycle mean lies within ±{alpha:.0%} of the true RUL (α-λ accuracy) "
+                  "and the relative accuracy 1 - |error| / true RUL (1 is perfect)."),
+            ("table", ["inputs", "λ", f"units within ±{alpha:.0%}", "relative accuracy"],
+             life)]
     for inputs, png in figs.items():
+        if inputs == "error_by_rul":
+            out.append(("img", png, "error Δ = true - predicted RUL by bin of true RUL, every "
+                                    "test sample (box: quartiles; whiskers: 5-95 %)"))
+            continue
         t = trained[inputs]
         best = ", ".join(f"seed {m['seed']}: best epoch {m['best_epoch']} of {m['epochs_run']}"
                          for m in t["members"])
@@ -207,8 +274,9 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     """Write the report from the stage summaries ``s`` (keys ``data``, ``calibrate``,
     ``discover``, ``features``, ``train``, ``evaluate``); returns what was written."""
     from engine_model.datasets import read_dataset, read_metadata, summarize
-    from prognostics.plots import plot_rul, plot_theta, plot_training_curves
+    from prognostics.plots import plot_error_by_rul, plot_rul, plot_theta, plot_training_curves
 
+    started = time.perf_counter()
     figs = out / FIGURES
     feats = s["features"]
     table, split = feats["table"], feats["split"]
@@ -226,17 +294,25 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     if hat:
         theta_png = figs / "theta.png"
         per = df.groupby(["unit", "cycle"], sort=True)[hat].mean().reset_index()
+        sd = [h + "_std" for h in hat if h + "_std" in df.columns]
+        std = None
+        if sd:
+            std = df.groupby(["unit", "cycle"], sort=True)[sd].mean().reset_index()
+            std.columns = ["unit", "cycle", *(c.removesuffix("_std") for c in sd)]
         truth = None
         if acc is not None:
             qs = [h[:-4] for h in hat]
             truth = df.groupby(["unit", "cycle"], sort=True)[qs].mean().reset_index()
             truth.columns = ["unit", "cycle", *hat]
-        plot_theta(per, hat, theta_png, truth)
+        plot_theta(per, hat, theta_png, truth, std)
     rul_figs = {}
     for inputs, e in s["evaluate"].items():
         pc = per_cycle(pd.read_parquet(out / e["predictions"]))
         rul_figs[inputs] = figs / f"rul_{inputs}.png"
         plot_rul(pc, f"{config['train']['model'].upper()} {inputs}", rul_figs[inputs])
+    rul_figs["error_by_rul"] = figs / "error_by_rul.png"
+    plot_error_by_rul({k: e["metrics"]["error_by_rul"] for k, e in s["evaluate"].items()},
+                      rul_figs["error_by_rul"])
     curves = figs / "training.png"
     plot_training_curves(_history(s["train"]), curves)
     disc = s.get("discover")
@@ -251,7 +327,10 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     seed = config["pipeline"]["seed"]
     head = [("h", 1, "hyprog pipeline report"),
             ("p", f"Data: {s['data']['label']}. Seed {seed}. hyprog {vers['hyprog']}.")]
-    blocks = (head + _fleet_blocks(fleet, split)
+    timings = {**timings, "report": {"status": "done",
+                                     "seconds": time.perf_counter() - started}}
+    blocks = (head + _summary_blocks(s["evaluate"], acc, s["calibrate"], disc, feats["effects"])
+              + _fleet_blocks(fleet, split)
               + _calibration_blocks(s["calibrate"], acc, theta_png, before, feats["effects"])
               + _discovery_blocks(disc, feats["effects"], disc_png)
               + _rul_blocks(s["evaluate"], rul_figs, s["train"])
@@ -260,7 +339,8 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
                  ("table", ["stage", "status", "seconds"],
                   [[k, v["status"], _f(v["seconds"], ".1f")] for k, v in timings.items()]),
                  ("p", f"Total {sum(v['seconds'] for v in timings.values()):.1f} s "
-                       "(of this run; a skipped stage costs only its check)."),
+                       "(of this run; a skipped stage costs only its check; the report's "
+                       "time runs to the start of writing its files)."),
                  ("h", 2, "Configuration"), ("pre", to_toml(config)),
                  ("h", 2, "Versions"),
                  ("table", ["package", "version"], [[k, v or "–"] for k, v in vers.items()])])
