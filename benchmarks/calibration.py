@@ -50,7 +50,7 @@ def main(argv=None):
     if a.params:
         kw["params"] = THETA_NAMES if a.params == "all" else tuple(a.params.split(","))
     if a.drift is not None:
-        kw["drift_std_per_sqrt_h"] = a.drift
+        kw["drift"] = a.drift
     setup = CalibrationSetup(**kw)
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python "
           f"{platform.python_version()}; {a.jobs} worker processes")

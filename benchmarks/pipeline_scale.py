@@ -81,7 +81,7 @@ def stage(name: str, n: int, work: Path, jobs: int, scheduler: str | None,
 
         drift = 0.01 if base == "tiny" else None  # the tiny fleet's fast wear (README)
         setup = CalibrationSetup() if drift is None else CalibrationSetup(
-            drift_std_per_sqrt_h=drift)
+            drift=drift)
         res = calibrate_fleet(fleet, "ukf", setup, out=feats, keep_results=False,
                               jobs=jobs, scheduler=scheduler)
         rows = res.samples

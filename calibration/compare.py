@@ -121,7 +121,7 @@ def compare(data, methods: Sequence[str] = DEFAULT_METHODS, setup: CalibrationSe
     frames = {int(u): g.reset_index(drop=True) for u, g in df_all.groupby("unit", sort=True)}
     model = default_model()
     report = {"data": source, "units": sorted(frames), "samples": int(len(df_all)),
-              "params": list(setup.params), "drift_std_per_sqrt_h": setup.drift_std_per_sqrt_h,
+              "params": list(setup.params), "drift": setup.drift,
               "jobs": jobs, "methods": {}}
     S_cache: dict = {}
     for method in methods:
@@ -180,7 +180,7 @@ def compare(data, methods: Sequence[str] = DEFAULT_METHODS, setup: CalibrationSe
 def format_report(report: dict) -> str:
     """The comparison as markdown tables (one per method)."""
     lines = [f"data: {report['data']}, units {report['units']}, {report['samples']:,} samples;"
-             f" drift q = {report['drift_std_per_sqrt_h']:g} per sqrt(h)"]
+             f" drift q = {report['drift']:g} per sqrt(h)"]
 
     def f(v, fmt):
         return "-" if v is None else format(v, fmt)

@@ -11,7 +11,7 @@ State-space model shared by all (paper eq. 5-6)::
   the reading; ``s = noise_scale``), evaluated at the measured reading (the difference to the
   noise-free reading is a fraction of a percent of sigma).
 - ``Q_k``: a random walk in **operating time**, ``dtau_k`` [h] of operation before sample
-  ``k``; ``q = drift_std_per_sqrt_h``. Where the drift goes (``drift_per``):
+  ``k``; ``q = drift``. Where the drift goes (``drift_per``):
 
   * ``"cycle"`` (default when the data have a ``cycle`` column): theta is constant within a
     flight and the wear of a whole flight enters at the first sample of the next cycle,
@@ -93,7 +93,8 @@ class CalibrationSetup:
                     those that do not follow their stated definition (``not_physical`` of
                     a C-MAPSS import: its ``Ps30``) [()]
     ``noise_scale`` multiplier of the documented sensor noise in ``R`` [1]
-    ``drift_std_per_sqrt_h``  random-walk std of theta per sqrt(hour of operation) [1e-3]
+    ``drift``       random-walk std of theta per sqrt(hour of operation) (``hyprog calibrate
+                    --drift``, the pipeline's ``[calibrate] drift``) [1e-3]
     ``prior_mean``  prior mean of the estimated theta at the first sample, one value or one
                     per parameter [0]
     ``prior_std``   prior std, one value or one per parameter [0.02]
@@ -110,7 +111,7 @@ class CalibrationSetup:
     sensors: tuple | None = None
     exclude_sensors: tuple = ()
     noise_scale: float = 1.0
-    drift_std_per_sqrt_h: float = DEFAULT_DRIFT_STD_PER_SQRT_H
+    drift: float = DEFAULT_DRIFT_STD_PER_SQRT_H
     prior_mean: float | tuple = 0.0
     prior_std: float | tuple = DEFAULT_PRIOR_STD
     theta_fixed: tuple = ()
@@ -160,8 +161,8 @@ class CalibrationSetup:
             raise InputError("prior_std must be positive")
         if not (self.noise_scale > 0):
             raise InputError(f"noise_scale must be positive, got {self.noise_scale}")
-        if not (self.drift_std_per_sqrt_h >= 0):
-            raise InputError("drift_std_per_sqrt_h must be >= 0")
+        if not (self.drift >= 0):
+            raise InputError(f"drift must be >= 0, got {self.drift}")
         lo, hi = self.bounds
         if not lo < hi:
             raise InputError(f"bounds: lower {lo} must be below upper {hi}")

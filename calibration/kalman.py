@@ -159,7 +159,7 @@ class KalmanEstimator(Estimator):
         lanes = Lanes.stack([series[i] for i in order])
         rows = np.array([self.model.output_names.index(c) for c in lanes.sensors])
         f = self.make_filter(sub, lanes.n_lanes)
-        trace = self._filter(f, lanes, sub.drift_std_per_sqrt_h ** 2, rows)
+        trace = self._filter(f, lanes, sub.drift ** 2, rows)
         t_filter = time.perf_counter() - t0
         y_all, x_conv = self._x_hat(lanes, sub, trace)
         seconds = time.perf_counter() - t0

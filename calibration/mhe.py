@@ -346,7 +346,7 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
     ub = np.full(nt, setup.bounds[1])
     prior = ArrivalCost.prior(setup.prior_mean_vec()[keep], setup.prior_std_vec()[keep])
     arrival = prior
-    q2 = setup.drift_std_per_sqrt_h ** 2
+    q2 = setup.drift ** 2
     th_prev = prior.mu.copy()
     # a constant-theta window must not hold a step of the drift model: with the drift per
     # cycle the windows restart at every cycle's first sample

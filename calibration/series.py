@@ -57,7 +57,7 @@ class UnitSeries:
 
     def q_diag(self, setup: CalibrationSetup) -> np.ndarray:
         """(N,) variance of the random-walk step before each sample (same for every theta)."""
-        return setup.drift_std_per_sqrt_h ** 2 * self.dtau_h
+        return setup.drift ** 2 * self.dtau_h
 
 
 def _numbers(df: pd.DataFrame, columns, where: str) -> np.ndarray:

@@ -49,7 +49,7 @@ def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
 
     p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
-                drift_std_per_sqrt_h=drift_value(drift), noise_scale=noise_scale,
+                drift=drift_value(drift), noise_scale=noise_scale,
                 prior_std=prior_std, drift_per=drift_per)
     return CalibrationSetup(**kw)
 

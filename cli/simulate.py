@@ -30,7 +30,8 @@ def simulate(
     units: Annotated[str | None, typer.Option(
         "--units", help="Comma-separated unit numbers of the preset (default: all).")] = None,
     rate: Annotated[float | None, typer.Option(
-        "--rate", help="Sample rate [Hz]: 1 (native) or 1/k, e.g. 0.1 as in the paper.")] = None,
+        "--rate-hz", "--rate", help="Sample rate [Hz]: 1 (native) or 1/k, e.g. 0.1 as in the "
+        "paper (the pipeline's [simulate] rate_hz).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
     effect: Annotated[list[str] | None, typer.Option(
         "--effect", help="NAME[:param=value,...] switched on in the truth (repeatable); "

@@ -65,9 +65,9 @@ def train(
         "several conditions, as C-MAPSS FD002/FD004 imports have; else minmax), minmax (the "
         "paper's, over the fleet) or condition (sensors standardised per operating "
         "condition).")] = "auto",
-    keep_constant: Annotated[bool, typer.Option(
-        "--keep-constant", help="Keep input columns that are constant over the training rows "
-        "(dropped by default).")] = False,
+    drop_constant: Annotated[bool, typer.Option(
+        "--drop-constant/--keep-constant", help="Drop input columns that are constant over "
+        "the training rows, or keep them.")] = True,
     validation: Annotated[Literal[VALIDATIONS], typer.Option(
         "--validation", help="auto (10 % of the training units, whole, when there are at "
         "least two; else 10 % of the flights), flights or units.")] = "auto",
@@ -112,7 +112,7 @@ def train(
         cfg = TrainConfig(model=model, inputs=inputs, window=window, stride=stride,
                           max_rul=max_rul, seed=seed, epochs=epochs, batch_size=batch_size,
                           lr=lr, patience=patience, schedule=schedule, normalise=normalise,
-                          drop_constant=not keep_constant,
+                          drop_constant=drop_constant,
                           validation="units" if vu or by_seed else validation,
                           val_units=tuple(vu) if vu else None,
                           units=tuple(parse_units(units) or []) or None,

@@ -129,7 +129,7 @@ class TrainConfig:
             if v is not None and not (v > 0 and v < float("inf")):
                 raise InputError(f"{name} must be a positive finite number, got {v}")
         if not (c.lr > 0 and c.lr < float("inf")):
-            raise InputError(f"learning rate must be a positive finite number, got {c.lr}")
+            raise InputError(f"lr (learning rate) must be a positive finite number, got {c.lr}")
         if not 0.0 < c.alpha < 1.0:
             raise InputError(f"alpha (interval miscoverage) must lie in (0, 1), got {c.alpha}")
         return c

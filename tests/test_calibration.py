@@ -79,7 +79,7 @@ def healthy(model):
 
 @pytest.fixture(scope="module")
 def all_results(model, draws):
-    setup = CalibrationSetup(drift_std_per_sqrt_h=Q_TEST)
+    setup = CalibrationSetup(drift=Q_TEST)
     return {m: get_estimator(m, model=model).estimate_many(draws, setup) for m in ("ukf", "ekf")}
 
 
@@ -174,7 +174,7 @@ def test_features_table_has_the_papers_columns(results, degraded):
 @pytest.mark.parametrize("method", ["ukf", "ekf"])
 def test_no_degradation_stays_at_zero(model, healthy, method):
     res = get_estimator(method, model=model).estimate(
-        healthy, CalibrationSetup(drift_std_per_sqrt_h=Q_TEST))
+        healthy, CalibrationSetup(drift=Q_TEST))
     for q in PAPER_THETA:
         e, s = errors(res, healthy, q)
         assert np.all(np.abs(e[50:]) < 3.5 * s[50:]), q
@@ -183,13 +183,13 @@ def test_no_degradation_stays_at_zero(model, healthy, method):
 
 def test_sensor_subset(model, degraded):
     sensors = ("Wf", "T30", "T48", "T50", "Ps30", "P50")
-    setup = CalibrationSetup(sensors=sensors, drift_std_per_sqrt_h=Q_TEST)
+    setup = CalibrationSetup(sensors=sensors, drift=Q_TEST)
     res = get_estimator("ukf", model=model).estimate(degraded.drop(columns=["T24", "P24"]),
                                                      setup)
     assert res.sensors == sensors
     assert res.residuals.columns.tolist() == list(sensors)
     full = get_estimator("ukf", model=model).estimate(
-        degraded, CalibrationSetup(drift_std_per_sqrt_h=Q_TEST))
+        degraded, CalibrationSetup(drift=Q_TEST))
     for q in PAPER_THETA:
         e, s = errors(res, degraded, q)
         assert abs(e[-1]) < 3 * s[-1]
@@ -198,7 +198,7 @@ def test_sensor_subset(model, degraded):
 
 
 def test_lockstep_lanes_are_independent(model, degraded, healthy):
-    setup = CalibrationSetup(drift_std_per_sqrt_h=Q_TEST)
+    setup = CalibrationSetup(drift=Q_TEST)
     ukf = get_estimator("ukf", model=model)
     short = healthy[healthy["cycle"] <= 2]
     both = ukf.estimate_many([degraded, short], setup)
@@ -214,7 +214,7 @@ def test_unobservable_parameters_are_reported_not_estimated(model, degraded):
     # of the controller holds another quantity than the fan speed, e.g. the minimum N2 at
     # flight idle, Nf responds to turbine health: dNf/dHPT_eff = -553 rpm at 20 kft M0.5
     # TRA 40.)
-    setup = CalibrationSetup(sensors=("P2",), drift_std_per_sqrt_h=Q_TEST)
+    setup = CalibrationSetup(sensors=("P2",), drift=Q_TEST)
     with pytest.raises(UnobservableError, match="HPT_eff_mod"):
         get_estimator("ekf", model=model).estimate(degraded, setup)
     # the inlet and the bypass duct (P15) cannot separate three turbine parameters: the
@@ -222,7 +222,7 @@ def test_unobservable_parameters_are_reported_not_estimated(model, degraded):
     # prior's. Which one depends on the operating points' sensitivities (LPT efficiency before
     # the bleed-valve schedule of issue 12, HPT efficiency since), so the test reads it from
     # the diagnostics and checks that the warning names it and that it alone is withheld.
-    setup = CalibrationSetup(sensors=("P2", "P15"), drift_std_per_sqrt_h=Q_TEST)
+    setup = CalibrationSetup(sensors=("P2", "P15"), drift=Q_TEST)
     with pytest.warns(UnobservableWarning) as caught:
         res = get_estimator("ekf", model=model).estimate(degraded, setup)
     weak = res.diagnostics["unobservable"]
@@ -324,7 +324,7 @@ def test_posterior_crb_without_drift_is_the_batch_bound():
 
 
 def test_filters_are_near_the_crb(model, results, degraded):
-    setup = CalibrationSetup(drift_std_per_sqrt_h=Q_TEST)
+    setup = CalibrationSetup(drift=Q_TEST)
     series = prepare_unit(degraded, setup)
     crb = unit_posterior_crb(model, series, setup, degraded[list(PAPER_THETA)].to_numpy())
     for j, q in enumerate(PAPER_THETA):

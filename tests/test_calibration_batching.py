@@ -28,7 +28,7 @@ from engine_model import InputError, datasets
 from tests.conftest import REPO
 
 TINY = REPO / "data_samples" / "tiny"
-SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
+SETUP = CalibrationSetup(drift=0.01)
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_solve_series_of_stacked_series_equals_one_call_each(model, units):
 def test_observability_of_many_units_equals_one_unit_at_a_time(model, units):
     frames, meta = units
     for setup in (SETUP.for_dataset(meta),
-                  CalibrationSetup(sensors=("P2", "P15"), drift_std_per_sqrt_h=0.01)):
+                  CalibrationSetup(sensors=("P2", "P15"), drift=0.01)):
         series = [prepare_unit(f, setup) for f in frames]
         with warnings.catch_warnings(record=True) as w_many:
             warnings.simplefilter("always")

@@ -30,7 +30,7 @@ from engine_model.channels import PAPER_THETA
 from tests.conftest import REPO
 
 TINY = REPO / "data_samples" / "tiny"
-SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)  # tiny: 10-cycle lives, fast wear
+SETUP = CalibrationSetup(drift=0.01)  # tiny: 10-cycle lives, fast wear
 
 
 @pytest.fixture(scope="module")

@@ -172,7 +172,7 @@ def test_a_folder_never_mixes_settings(runner, tmp_path, small):
     assert r.exit_code == 0, r.stderr
     # unit 2 with another drift into the same folder: refused, naming unit 1's setting
     assert_error(run(runner, "calibrate", data, "--units", "2", "--drift", "0.01",
-                     "--out", out), "unit 1", "drift_std_per_sqrt_h", "0.02", "0.01")
+                     "--out", out), "unit 1", "drift", "0.02", "0.01")
     assert datasets.written_units(out) == [1]
     # a folder mixed by hand (unit 2's metadata says another drift): found, not unit 1's
     r = run(runner, "calibrate", data, "--units", "2", "--drift", "0.02", "--out", out)
@@ -182,11 +182,11 @@ def test_a_folder_never_mixes_settings(runner, tmp_path, small):
 
     table = pq.read_table(part)
     meta = json.loads(table.schema.metadata[b"hyprog"])
-    meta["calibration"]["setup"]["drift_std_per_sqrt_h"] = 0.01
+    meta["calibration"]["setup"]["drift"] = 0.01
     pq.write_table(table.replace_schema_metadata({b"hyprog": json.dumps(meta).encode()}),
                    part)
     assert_error(run(runner, "calibrate", data, "--drift", "0.02", "--out", out),
-                 "unit 2", "drift_std_per_sqrt_h")
+                 "unit 2", "drift")
 
 
 # ------------------------------------------------------------------------------------------

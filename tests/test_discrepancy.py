@@ -36,7 +36,7 @@ from engine_model.physics.effects import parse_effect_spec
 from engine_model.simulator import fleet
 
 BLEED = 0.015
-SETUP = CalibrationSetup(drift_std_per_sqrt_h=0.01)
+SETUP = CalibrationSetup(drift=0.01)
 FAST = dict(n_draws=5000)  # warm start: coarse (the default)
 
 
@@ -247,8 +247,8 @@ def clean_dir(tmp_path_factory, model):
 def test_drift_mle_for_the_estimators(clean_dir, model):
     """``hyprog calibrate --drift mle``: q from the per-cycle fit, put into the setup."""
     s = setup_with_drift_mle("mle", clean_dir, SETUP, model=model)
-    assert 1e-4 < s.drift_std_per_sqrt_h < 0.1
-    assert s.drift_std_per_sqrt_h != SETUP.drift_std_per_sqrt_h
+    assert 1e-4 < s.drift < 0.1
+    assert s.drift != SETUP.drift
     assert setup_with_drift_mle("0.01", clean_dir, SETUP) is SETUP
 
 

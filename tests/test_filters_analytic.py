@@ -115,7 +115,7 @@ def kalman_reference(model: LinearModel, df: pd.DataFrame, setup: CalibrationSet
     base = setup.theta_base()
     m = setup.prior_mean_vec().copy()
     P = np.diag(setup.prior_std_vec() ** 2)
-    q2 = setup.drift_std_per_sqrt_h ** 2
+    q2 = setup.drift ** 2
     ms, Ps, nis = [], [], []
     for k in range(len(s)):
         if k > 0:
@@ -142,7 +142,7 @@ def linear():
 
 @pytest.fixture(scope="module")
 def setup():
-    return CalibrationSetup(params=PARAMS, sensors=SENSORS, drift_std_per_sqrt_h=0.01)
+    return CalibrationSetup(params=PARAMS, sensors=SENSORS, drift=0.01)
 
 
 def test_linear_model_satisfies_the_interface(linear):

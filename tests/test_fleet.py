@@ -207,7 +207,7 @@ def test_cli_simulate_info_effects(tmp_path):
     (["--effect", "customer_bleed:f0=0,f_alt=0"], "neutral default"),
     (["--units", "1,x"], "--units 1,x"),
     (["--units", "9"], "no unit 9"),
-    (["--rate", "0.3"], "--rate"),
+    (["--rate", "0.3"], "rate_hz 0.3"),
     (["--preset", "ds99"], "unknown preset"),
     (["--format", "csv"], "--format csv"),
 ])

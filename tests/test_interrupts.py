@@ -143,7 +143,7 @@ def cut(tmp_path_factory):
     data = root / "fleet"
     datasets.write_parquet(df[keep].reset_index(drop=True), data, meta)
     ref = root / "features"
-    calibrate_fleet(data, "ukf", CalibrationSetup(drift_std_per_sqrt_h=float(DRIFT)),
+    calibrate_fleet(data, "ukf", CalibrationSetup(drift=float(DRIFT)),
                     out=ref, keep_results=False)
     return data, ref
 
@@ -164,7 +164,7 @@ def test_sigkill_of_calibrate_resumes_to_the_uninterrupted_files(tmp_path, cut):
     from calibration import CalibrationSetup
     from calibration.calibrate_fleet import calibrate_fleet
 
-    run = calibrate_fleet(data, "ukf", CalibrationSetup(drift_std_per_sqrt_h=float(DRIFT)),
+    run = calibrate_fleet(data, "ukf", CalibrationSetup(drift=float(DRIFT)),
                           out=out, keep_results=False)
     assert run.skipped == [3] and sorted(run.units) == [4]  # unit 3 kept, unit 4 computed
     assert not [q for q in out.rglob(".*") if ".tmp-" in q.name]

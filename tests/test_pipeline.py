@@ -254,6 +254,32 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("toml, fragments", [
+    ("[train]\nepochs = -2\n", ["[train] epochs", "-2"]),
+    ("[train]\nwindow = 0\n", ["[train] window", "0"]),
+    ("[train]\nmax_rul = -5\n", ["[train] max_rul", "-5"]),
+    ("[train]\nlr = -1\n", ["[train] lr", "-1"]),
+    ("[train]\nbatch_size = 0\n", ["[train] batch_size", "0"]),
+    ("[train]\ninputs = [\"bogus\"]\n", ["[train] inputs", "bogus", "input set"]),
+    ("[data]\ntest_units = [9]\n", ["[data] test_units", "9", "not in the data"]),
+    ("[discover]\nalpha = 1.5\n", ["[discover] alpha", "1.5"]),
+    ("[calibrate]\ndrift = -0.01\n", ["[calibrate] drift", "-0.01"]),
+    ("[simulate]\neffects = [\"customer_bleed\"]\n", ["[simulate]", "customer_bleed:f0="]),
+], ids=["epochs", "window", "max_rul", "lr", "batch_size", "inputs", "test_units", "alpha",
+        "drift", "neutral-effect"])
+def test_bad_config_values_are_refused_before_any_stage(runner, tmp_path, toml, fragments):
+    """Issue 31: these failed only after calibrate (and discover) ran, naming neither the file
+    nor the key (``--alpha 1.5``, ``drift_std_per_sqrt_h``): now one line naming both, and
+    nothing is left behind."""
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(toml)
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["pipeline", "--config", str(cfg), "--out", str(out)])
+    assert_one_line_error(r, str(cfg), *fragments)
+    assert "drift_std_per_sqrt_h" not in r.stderr and "--alpha" not in r.stderr
+    assert not out.exists()  # no stage ran: a refused run leaves nothing
+
+
 def test_missing_data_and_config_and_foreign_out(runner, tmp_path):
     out = tmp_path / "out"
     missing = tmp_path / "no-such-fleet"

@@ -129,4 +129,4 @@ def setup_with_drift_mle(text, data, setup: CalibrationSetup, units=None,
         df = df.assign(unit=1)
     frames = [g for _, g in df.groupby("unit", sort=True)]
     q = estimate_drift(frames, setup, model, source=data)
-    return replace(setup, drift_std_per_sqrt_h=q)
+    return replace(setup, drift=q)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from calibration.base import ESTIMATORS
 from calibration.estimation_setup import CalibrationSetup
 from engine_model.channels import THETA_NAMES
 from engine_model.validation import InputError
@@ -51,10 +52,13 @@ class DiscoverOptions:
     holdout_every: int = 3
 
     def __post_init__(self):
+        if self.method != "coarse" and self.method not in ESTIMATORS:
+            raise InputError(f"method {self.method!r}: 'coarse' or one of "
+                             f"{', '.join(ESTIMATORS)}")
         if not 0.0 < self.alpha < 0.5:
-            raise InputError(f"--alpha {self.alpha}: expected a level between 0 and 0.5")
+            raise InputError(f"alpha {self.alpha}: expected a level between 0 and 0.5")
         if self.max_effects < 0:
-            raise InputError(f"--max-effects {self.max_effects}: expected 0 or more")
+            raise InputError(f"max_effects {self.max_effects}: expected 0 or more")
         if self.noise not in ("check", "documented"):
             raise InputError(f"noise {self.noise!r}: 'check' or 'documented'")
         if isinstance(self.drift, str) and self.drift != "mle":
@@ -178,7 +182,7 @@ def discover(frames: list[pd.DataFrame], setup: CalibrationSetup | None = None,
     if isinstance(o.drift, float | int) and not isinstance(o.drift, bool):
         from dataclasses import replace
 
-        setup = replace(setup, drift_std_per_sqrt_h=float(o.drift))
+        setup = replace(setup, drift=float(o.drift))
     units = [unit_data(f, setup, source) for f in frames]
     sensors = units[0].series.sensors
     carried, cands = build_candidates(o.candidates, sensors,

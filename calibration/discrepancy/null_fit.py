@@ -128,7 +128,7 @@ class Problem:
         self.k = setup.k
         self.est_idx = setup.param_index
         self.scale = np.ones(self.m)
-        self.q = float(setup.drift_std_per_sqrt_h if q is None else q)
+        self.q = float(setup.drift if q is None else q)
         self.mu0 = setup.prior_mean_vec()
         self.sd0 = setup.prior_std_vec()
         self.n_phi = cm.n_phi

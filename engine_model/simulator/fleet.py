@@ -285,9 +285,20 @@ def check_rate(rate_hz) -> float:
     rate = float(rate_hz)
     if (not np.isfinite(rate) or rate <= 0 or rate > 1.0
             or abs(1.0 / rate - round(1.0 / rate)) > 1e-9):
-        raise InputError(f"--rate {rate:g}: the sample rate must be 1 Hz divided by an integer"
-                         " (1, 0.5, 0.1, ...)")
+        raise InputError(f"rate_hz {rate:g}: the sample rate must be 1 Hz divided by an "
+                         "integer (1, 0.5, 0.1, ...)")
     return rate
+
+
+def check_effects(effects) -> None:
+    """Every effect switched on injects something: one whose parameters are all at their
+    neutral defaults would leave the fleet without it, silently (an error naming its typical
+    size instead)."""
+    for e in effects:
+        if e.is_neutral():
+            raise InputError(f"effect {e.spec()}: every parameter is at its neutral default, "
+                             "so the fleet would contain no effect; give its size, e.g. "
+                             f"{e.typical_spec()}")
 
 
 # ------------------------------------------------------------------------------ Dask tasks
@@ -339,11 +350,7 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     in this process (neither); all three run through the one executor
     (:func:`engine_model.runtime.cluster.executor`)."""
     p = get_preset(preset) if isinstance(preset, str) else preset
-    for e in effects:
-        if e.is_neutral():
-            raise InputError(f"effect {e.spec()}: every parameter is at its neutral default, "
-                             "so the fleet would contain no effect; give its size, e.g. "
-                             f"{e.typical_spec()}")
+    check_effects(effects)
     specs = select_units(p, units)
     rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
     rec = record or p.record

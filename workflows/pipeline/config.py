@@ -93,11 +93,13 @@ import typing
 from dataclasses import MISSING, fields
 from pathlib import Path
 
+from calibration.base import ESTIMATORS
 from calibration.estimation_setup import CalibrationSetup
 from engine_model.validation import InputError
 from prognostics.train_config import TrainConfig
 
 _INT, _FLOAT, _STR, _BOOL = int, float, str, bool
+
 _UNITS = "units"  # a list of integers
 _NAMES = "names"  # a list of strings
 
@@ -188,6 +190,63 @@ def check_run(config: dict, source: str = "config") -> None:
         raise InputError(f"{source}: [run] jobs must be >= 1, got {config['run']['jobs']}")
 
 
+def check_values(config: dict, source: str = "config") -> None:
+    """Every value of ``config`` usable, checked before any stage runs (a bad value found
+    after an hour of calibration wastes the hour), by the library objects that will use them,
+    their messages prefixed with ``source: [table]``. What needs the data (units, input
+    columns) is checked by the pipeline's data step, also before any stage."""
+    from calibration.discrepancy.loop import DiscoverOptions
+    from engine_model.physics.effects import parse_effect_spec
+    from engine_model.simulator.fleet import check_effects, check_rate
+
+    def check(table: str, fn) -> None:
+        try:
+            fn()
+        except InputError as e:
+            raise InputError(f"{source}: [{table}] {e}") from None
+
+    check_run(config, source)
+    t = config["train"]
+    empty = {"dev": [], "test": [], "conformal": []}
+    check("train", lambda: train_config(config, "data-driven", empty).resolved())
+    if t["ensemble"] < 1:
+        raise InputError(f"{source}: [train] ensemble must be >= 1, got {t['ensemble']}")
+    if not t["inputs"]:
+        raise InputError(f"{source}: [train] inputs is empty: name at least one input set")
+    c = config["calibrate"]
+    if c["method"] not in ESTIMATORS:
+        raise InputError(f"{source}: [calibrate] method must be one of "
+                         f"{', '.join(ESTIMATORS)}, got {c['method']!r}")
+    check("calibrate", lambda: calibration_setup(config))
+    d = config["discover"]
+    if d["n_draws"] < 1:
+        raise InputError(f"{source}: [discover] n_draws must be >= 1, got {d['n_draws']}")
+    check("discover", lambda: DiscoverOptions(method=d["method"], alpha=d["alpha"],
+                                              max_effects=d["max_effects"], drift=d["drift"],
+                                              n_draws=d["n_draws"]))
+    sim = config["simulate"]
+    if sim["rate_hz"] is not None:
+        check("simulate", lambda: check_rate(sim["rate_hz"]))
+    check("simulate", lambda: check_effects([parse_effect_spec(e) for e in sim["effects"]]))
+    dc = config["data"]
+    if dc["dev_units"] is not None and dc["test_units"] is not None:
+        both = sorted(set(dc["dev_units"]) & set(dc["test_units"]))
+        if both:
+            raise InputError(f"{source}: [data] unit(s) {', '.join(map(str, both))} are in "
+                             "both dev_units and test_units")
+
+
+def calibration_setup(config: dict):
+    """The :class:`~calibration.CalibrationSetup` of the ``calibrate`` table."""
+    c = config["calibrate"]
+    kw = {"drift": c["drift"], "noise_scale": c["noise_scale"], "prior_std": c["prior_std"]}
+    if c["params"] is not None:
+        kw["params"] = tuple(c["params"])
+    if c["sensors"] is not None:
+        kw["sensors"] = tuple(c["sensors"])
+    return CalibrationSetup(**kw)
+
+
 def defaults() -> dict:
     """The configuration with every default (a fresh copy)."""
     return {t: {k: copy.deepcopy(d) for k, (_, d) in keys.items()} for t, keys in SCHEMA.items()}
@@ -243,7 +302,7 @@ def merge(config: dict, given: dict, source: str = "config") -> dict:
                                  f"{', '.join(SCHEMA[table])}")
             kind = SCHEMA[table][key][0]
             out[table][key] = _check_value(f"{source}: [{table}] {key}", kind, value)
-    check_run(out, source)
+    check_values(out, source)
     return out
 
 

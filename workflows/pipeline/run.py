@@ -88,6 +88,7 @@ def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
     configuration file), never written over."""
     out = Path(out)
     check_data(None if data is None else Path(data))
+    config_source = next((str(p) for p in inputs if p is not None), "config")
     inputs = (data, *inputs)
     check_out(out, inputs)
     log = log or (lambda msg: None)
@@ -98,7 +99,8 @@ def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
         remove_stale_temporaries(out)  # what a killed run left (a dead writer's only)
         if not (out / MARK).is_file():
             write_json(out / MARK, {"format": FORMAT})
-        ctx = stages.Context(out=out, config=config, quiet=quiet, log=log)
+        ctx = stages.Context(out=out, config=config, quiet=quiet, log=log,
+                             config_source=config_source)
         try:
             return _run(ctx, None if data is None else Path(data))
         except InputError:
@@ -162,6 +164,7 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
     adapted = ctx.adapted  # read and checked before any stage runs
     if adapted is not None:
         base["model_effects"] = adapted.sha256
+    stages.check_data_against_config(ctx, data)  # units, input columns: before any stage
     timings["data"] = {"status": "checked", "seconds": time.perf_counter() - t0}
     cal = step("calibrate", {"calibrate": cfg["calibrate"]}, base, stages.calibrate, data)
     disc = None

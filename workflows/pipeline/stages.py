@@ -37,7 +37,7 @@ from data_samples import TINY_FLEET, sample_path
 from engine_model.datasets.jsonable import jsonable
 from engine_model.validation import InputError
 
-from .config import train_config
+from .config import calibration_setup, train_config
 
 
 def default_data() -> Path:
@@ -54,6 +54,7 @@ class Context:
     quiet: bool = False
     log: Callable[[str], None] = field(default=lambda msg: None)
     source: str = "data"
+    config_source: str = "config"  # the TOML file, or "config" for the defaults
     _cluster: object = None
 
     @property
@@ -101,19 +102,6 @@ class Context:
 
 
 # ----------------------------------------------------------------------------- helpers
-def calibration_setup(config: dict):
-    from calibration import CalibrationSetup
-
-    c = config["calibrate"]
-    kw = {"drift_std_per_sqrt_h": c["drift"], "noise_scale": c["noise_scale"],
-          "prior_std": c["prior_std"]}
-    if c["params"] is not None:
-        kw["params"] = tuple(c["params"])
-    if c["sensors"] is not None:
-        kw["sensors"] = tuple(c["sensors"])
-    return CalibrationSetup(**kw)
-
-
 def split_units(present, metadata: dict, data_cfg: dict, source: str) -> dict:
     """Development, test and conformal units: the config's, else the metadata's, else every
     unit but the last for development and the last for test."""
@@ -149,6 +137,40 @@ def split_units(present, metadata: dict, data_cfg: dict, source: str) -> dict:
     if not test:
         raise InputError(f"{source}: no test unit")
     return {"dev": sorted(dev), "test": sorted(test), "conformal": sorted(conf), "how": how}
+
+
+def check_data_against_config(ctx: Context, data: Path) -> None:
+    """What the configuration asks of the data, checked before any stage runs, naming the
+    configuration file and key: the units of ``[data]`` are in the data, the split leaves a
+    development and a test unit, and every ``[train] inputs`` term is an input set, a group
+    or a column the feature table will have (a data column, or a channel or parameter with
+    ``_hat`` / ``_hat_std``, which calibrate adds)."""
+    from engine_model.channels import THETA_NAMES, UNITS
+    from engine_model.datasets import read_columns, read_dataset, read_metadata
+    from prognostics.features import GROUPS, INPUT_SETS
+
+    source = ctx.config_source
+    dc = ctx.config["data"]
+    present = sorted(int(u) for u in read_dataset(data, columns=["unit"])[0]["unit"].unique())
+    missing = [u for u in dc["units"] or () if u not in present]
+    if missing:
+        raise InputError(f"{source}: [data] units: unit(s) {', '.join(map(str, missing))} "
+                         f"not in {data} (its units: {', '.join(map(str, present))})")
+    chosen = [u for u in present if dc["units"] is None or u in dc["units"]]
+    split_units(chosen, read_metadata(data), dc, f"{source} (units of {data}: "
+                f"{', '.join(map(str, chosen))})")
+    names = set(read_columns(data)) | {f"{c}_hat" for c in UNITS} \
+        | {f"{q}_hat_std" for q in THETA_NAMES}
+    for spec in ctx.config["train"]["inputs"]:
+        for term in (t.strip() for t in spec.split("+")):
+            if term in INPUT_SETS or term in GROUPS:
+                continue
+            unknown = [c.strip() for c in term.split(",") if c.strip() not in names]
+            if unknown or not term:
+                what = ", ".join(unknown) or "an empty term"
+                raise InputError(f"{source}: [train] inputs {spec!r}: {what} is neither an "
+                                 f"input set ({', '.join(INPUT_SETS)}), a group "
+                                 f"({', '.join(GROUPS)}) nor a column of the feature table")
 
 
 def _read(path, units=None):
@@ -224,7 +246,7 @@ def discover(ctx: Context, folder: Path, data: Path) -> dict:
     cal = calibration_setup(ctx.config)
     setup = CalibrationSetup(params=cal.params, sensors=cal.sensors,
                              noise_scale=cal.noise_scale, prior_std=cal.prior_std,
-                             drift_std_per_sqrt_h=cal.drift_std_per_sqrt_h)
+                             drift=cal.drift)
     opts = DiscoverOptions(method=c["method"],
                            candidates=None if c["candidates"] is None else tuple(c["candidates"]),
                            alpha=c["alpha"], max_effects=c["max_effects"], drift=c["drift"],
