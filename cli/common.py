@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Annotated
@@ -104,6 +105,38 @@ def error_line(message: str) -> str:
     return "error: " + " ".join(str(message).split())
 
 
+@contextmanager
+def caught_warnings() -> Iterator[list[str]]:
+    """The library's warnings (``UserWarning`` and its subclasses) raised inside the block,
+    collected as one-line messages, each once, in order, for :func:`finish` to print or put
+    in the ``--json`` report (other categories, e.g. a dependency's deprecation, are left to
+    Python)."""
+    messages: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        try:
+            yield messages
+        finally:
+            for w in caught:
+                m = " ".join(str(w.message).split())
+                if issubclass(w.category, UserWarning) and m not in messages:
+                    messages.append(m)
+                elif not issubclass(w.category, UserWarning):
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
+def finish(report: dict, warned: list[str], as_json: bool) -> bool:
+    """End a command: with ``--json`` print ``report`` with its ``warnings`` (a list, empty
+    when none) and return True; else print each warning as a ``warning:`` line on stderr and
+    return False (the caller prints its text)."""
+    if as_json:
+        echo_json({**report, "warnings": list(warned)})
+        return True
+    for m in warned:
+        warn(m)
+    return False
+
+
 def warn(message: str) -> None:
     """One ``warning: ...`` line on stderr (text mode; ``--json`` reports carry warnings)."""
     typer.echo("warning: " + " ".join(str(message).split()), err=True)
@@ -117,25 +150,37 @@ def fail(message: str, code: int = EXIT_USAGE):
 
 
 @contextmanager
-def user_errors(source: object = None) -> Iterator[None]:
+def user_errors(source: object = None, output: object = None) -> Iterator[None]:
     """Turn the errors a user can act on into one line on stderr and exit code 2 (bad
-    input; :mod:`cli.main` states the rule)."""
+    input; :mod:`cli.main` states the rule). ``source``: what the block reads, named in an
+    error that names no file; ``output``: what it writes, named instead of a hidden temporary
+    (``.NAME.tmp-...``, :mod:`engine_model.runtime.atomic`) and for a failed write that
+    names no file (a full disk)."""
     import pandas as pd
 
     from engine_model import InputError
 
     where = f"{source}: " if source is not None else ""
+
+    def named(e: OSError, default: object) -> str:
+        name = e.filename
+        if name is not None and output is not None and ".tmp-" in str(name):
+            name = output
+        name = name if name is not None else default
+        return "" if name is None else f"{name}: "
+
     try:
         yield
     except (CliError, InputError) as e:
         text = str(e)
         fail(text if source is not None and str(source) in text else f"{where}{text}")
     except FileNotFoundError as e:
-        fail(f"{e.filename or source}: no such file")
+        fail(f"{named(e, source)}no such file")
     except IsADirectoryError as e:
-        fail(f"{e.filename or source}: is a directory, expected a file")
+        fail(f"{named(e, source)}is a directory, expected a file")
     except OSError as e:
-        fail(f"{e.filename or source}: {e.strerror or e}")
+        writing = output if output is not None else source
+        fail(f"{named(e, writing)}{e.strerror or e}")
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
         fail(f"{where}cannot read as CSV: {e}")
 

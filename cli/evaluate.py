@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -11,7 +10,8 @@ import typer
 from cli.common import (
     CliError,
     Quiet,
-    echo_json,
+    caught_warnings,
+    finish,
     parse_units,
     progress_bar,
     user_errors,
@@ -19,16 +19,12 @@ from cli.common import (
 )
 
 
-def load_model_warned(model_dir: Path):
-    """Load a model; a version warning is printed as one ``warning: ...`` line on stderr."""
+def load_model_checked(model_dir: Path):
+    """The model of ``model_dir``; its errors name the model directory (not the data)."""
     from prognostics.checkpoint import load_model
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", UserWarning)
-        rul = load_model(model_dir)
-    for w in caught:
-        typer.echo(f"warning: {w.message}", err=True)
-    return rul
+    with user_errors(model_dir):
+        return load_model(model_dir)
 
 
 def evaluate(
@@ -53,17 +49,17 @@ def evaluate(
     """
     from engine_model.datasets import read_dataset
 
-    with user_errors(features):
-        rul = load_model_warned(model_dir)
-        df, meta = read_dataset(features)
-        test = parse_units(units) or [int(u) for u in meta.get("test_units") or []]
-        if not test:
-            raise CliError(f"{features}: the metadata names no test_units; pass --units")
-        with progress_bar("evaluating (windows x members)", quiet or as_json) as update:
-            metrics, _ = rul.evaluate(df, test, device, source=str(features),
-                                      progress=update)
-    if as_json:
-        echo_json(metrics)
+    with caught_warnings() as warned:
+        rul = load_model_checked(model_dir)
+        with user_errors(features):
+            df, meta = read_dataset(features)
+            test = parse_units(units) or [int(u) for u in meta.get("test_units") or []]
+            if not test:
+                raise CliError(f"{features}: the metadata names no test_units; pass --units")
+            with progress_bar("evaluating (windows x members)", quiet or as_json) as update:
+                metrics, _ = rul.evaluate(df, test, device, source=str(features),
+                                          progress=update)
+    if finish(metrics, warned, as_json):
         return
     from rich.table import Table
 

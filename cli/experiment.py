@@ -31,9 +31,13 @@ def _seeds(text: str, option: str) -> tuple[int, ...]:
             if n < 1:
                 raise CliError(f"{option} {text}: expected a count >= 1 or a list of seeds")
             return tuple(range(n))
-        return tuple(int(s) for s in text.split(",") if s.strip())
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
     except ValueError:
         raise CliError(f"{option} {text}: expected a count or comma-separated seeds") from None
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:  # one network counted as two would report an ensemble spread of 0
+        raise CliError(f"{option} {text}: seed(s) {', '.join(map(str, twice))} listed twice")
+    return seeds
 
 
 @app.command("paper", cls=PlainUsageCommand)

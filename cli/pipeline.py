@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cli.common import Quiet, console, echo_json, user_errors
+from cli.common import Quiet, caught_warnings, console, finish, user_errors
 
 
 def pipeline(
@@ -53,7 +53,7 @@ def pipeline(
     from workflows.pipeline import load_config, run_pipeline
     from workflows.pipeline.config import merge
 
-    with user_errors():
+    with caught_warnings() as warned, user_errors():
         cfg = load_config(config)
         if augment:
             cfg["discover"]["augment"] = True
@@ -65,8 +65,7 @@ def pipeline(
         silent = quiet or as_json or not err.is_terminal  # progress on a terminal only
         log = (lambda msg: None) if silent else (lambda msg: err.print(msg, soft_wrap=True))
         res = run_pipeline(out, cfg, data, quiet=silent, log=log, inputs=(config,))
-    if as_json:
-        echo_json(res)
+    if finish(res, [*res.pop("warnings"), *warned], as_json):
         return
     if quiet:  # --quiet: the result is in --out, nothing more is printed
         return

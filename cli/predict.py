@@ -13,7 +13,16 @@ from typing import Annotated, Literal
 
 import typer
 
-from cli.common import Overwrite, Quiet, console, echo_json, parse_units, progress_bar, user_errors
+from cli.common import (
+    Overwrite,
+    Quiet,
+    caught_warnings,
+    console,
+    finish,
+    parse_units,
+    progress_bar,
+    user_errors,
+)
 
 
 def predict(
@@ -43,20 +52,20 @@ def predict(
     Example:
       hyprog predict models/cnn new_flights.parquet --out rul.csv
     """
-    from cli.evaluate import load_model_warned
+    from cli.evaluate import load_model_checked
     from engine_model.datasets import read_dataset
     from engine_model.runtime import check_output, output_lock
     from prognostics.metrics import per_cycle
     from prognostics.outputs import prediction_targets, write_predictions
 
-    with user_errors(data):
+    with caught_warnings() as warned, user_errors(data, output=out):
         inputs = (model_dir, data)
         for target, kind in prediction_targets(out):  # before any work
             check_output(target, kind, overwrite, inputs)
         with ExitStack() as locks:  # one writer per output, released on Ctrl-C too
             for target, _ in prediction_targets(out):
                 locks.enter_context(output_lock(target))
-            rul = load_model_warned(model_dir)
+            rul = load_model_checked(model_dir)
             df, _ = read_dataset(data)
             with progress_bar("predicting (windows x members)", quiet or as_json) as update:
                 pred = rul.predict(df, parse_units(units), device, source=str(data),
@@ -66,8 +75,7 @@ def predict(
     rep = {"out": str(out), "per_cycle": str(pc_path), "samples": len(pred),
            "cycles": len(pc), "units": sorted(int(u) for u in pred["unit"].unique()),
            "interval": rul.conformal is not None}
-    if as_json:
-        echo_json(rep)
+    if finish(rep, warned, as_json):
         return
     if quiet:  # --quiet: the result is in --out, nothing more is printed
         return

@@ -11,8 +11,9 @@ from cli.common import (
     CliError,
     Overwrite,
     Quiet,
+    caught_warnings,
     console,
-    echo_json,
+    finish,
     parse_units,
     user_errors,
 )
@@ -78,8 +79,9 @@ def train(
     conformal_units: Annotated[str | None, typer.Option(
         "--conformal-units", help="Development units held out to calibrate a conformal "
         "interval.")] = None,
-    alpha: Annotated[float, typer.Option("--alpha", help="Interval miscoverage (0.1: 90 %).")
-                     ] = 0.1,
+    alpha: Annotated[float | None, typer.Option(
+        "--alpha", help="Miscoverage of the conformal interval (default 0.1: 90 %); needs "
+        "--conformal-units.")] = None,
     device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
         "--device", help="Where the networks run.")] = "auto",
     overwrite: Overwrite = False,
@@ -102,13 +104,16 @@ def train(
     from prognostics.ensemble import fit
     from prognostics.train_config import TrainConfig
 
-    with user_errors(features):
+    with caught_warnings() as warned, user_errors(features, output=out):
         if ensemble < 1:
             raise CliError(f"--ensemble {ensemble}: expected >= 1")
         check_model_target(out, overwrite, (features,))  # before hours of training
         by_seed = val_units is not None and val_units.strip().lower() == "seed"
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
+        if alpha is not None and not cu:
+            raise CliError(f"--alpha {alpha:g}: there is no interval to set without "
+                           "--conformal-units (the units it is calibrated on)")
         cfg = TrainConfig(model=model, inputs=inputs, window=window, stride=stride,
                           max_rul=max_rul, seed=seed, epochs=epochs, batch_size=batch_size,
                           lr=lr, patience=patience, schedule=schedule, normalise=normalise,
@@ -116,7 +121,8 @@ def train(
                           validation="units" if vu or by_seed else validation,
                           val_units=tuple(vu) if vu else None,
                           units=tuple(parse_units(units) or []) or None,
-                          conformal_units=tuple(cu), alpha=alpha, device=device)
+                          conformal_units=tuple(cu), alpha=0.1 if alpha is None else alpha,
+                          device=device)
         with output_lock(out):  # one writer per model directory; released on Ctrl-C too
             df, meta = read_dataset(features)
             rul = fit(df, meta, cfg, seeds=range(seed, seed + ensemble),
@@ -133,8 +139,7 @@ def train(
                         "train_loss": m.history[m.best_epoch - 1]["train_loss"]}
                        for m in rul.members],
            "conformal": None if rul.conformal is None else rul.conformal.to_dict()}
-    if as_json:
-        echo_json(rep)
+    if finish(rep, warned, as_json):
         return
     if quiet:  # --quiet: the result is in --out, nothing more is printed
         return

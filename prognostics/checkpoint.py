@@ -19,7 +19,16 @@ Loading refuses, with an :class:`InputError` naming the file:
 - a manifest whose own ``sha256`` does not match (edited by hand, truncated) or a weights file
   whose SHA-256 is not the one recorded (tampered, swapped between models);
 - another ``format_version`` (the layout changed; retrain or use the hyprog that wrote it);
-- weights whose names or shapes do not fit the recorded network.
+- weights whose names or shapes do not fit the recorded network (checked on a network built
+  on PyTorch's ``meta`` device, before any memory is allocated for it).
+
+**What the hashes do not do.** The SHA-256 values are unkeyed checksums: they catch accidents
+(a truncated copy, a hand edit, weights swapped between models), not an adversary, who can
+edit ``model.json`` and recompute its hash. Nothing in a model directory is executed
+(safetensors and JSON, no pickle), and a manifest that does not describe its weights is
+refused, so an edited one cannot make hyprog run code or allocate without bound; but a
+consistent edit (another scaler, another conformal quantile) loads. Keep models where only
+trusted people write, or sign the directory with an external tool.
 
 A model written by another hyprog *version* with the same ``format_version`` loads, with a
 ``UserWarning`` naming both versions: the format is versioned on its own, so a version bump
@@ -188,6 +197,27 @@ def _load_member(directory: Path, entry) -> Member:
         raise InputError(f"{directory / MANIFEST}: malformed member record ({exc})") from None
 
 
+def _check_shapes(manifest: Path, config: TrainConfig, n_inputs: int, members) -> None:
+    """The members' weights have the shapes of the network the manifest describes, checked on
+    a network built on PyTorch's ``meta`` device (shapes without memory), so that an edited
+    manifest (a window of 1e9) is refused before a real network is allocated."""
+    import torch
+
+    from .models import build_model
+
+    with torch.device("meta"):
+        skeleton = build_model(config.model, n_inputs, config.window)
+    want = {k: tuple(v.shape) for k, v in skeleton.state_dict().items()}
+    for m in members:
+        got = {k: tuple(v.shape) for k, v in m.state.items()}
+        if got != want:
+            diff = sorted(k for k in set(want) | set(got) if want.get(k) != got.get(k))
+            raise InputError(f"{manifest}: the weights do not fit a {config.model} with window "
+                             f"{config.window} and {n_inputs} inputs ({diff[0]}: weights "
+                             f"{got.get(diff[0])}, network {want.get(diff[0])}); the manifest "
+                             "does not describe these weights")
+
+
 def load_model(path: str | os.PathLike):
     """Read a model directory (or its ``model.json``) -> :class:`ensemble.RulModel`."""
     from .ensemble import RulModel
@@ -220,6 +250,7 @@ def load_model(path: str | os.PathLike):
     if not entries:
         raise InputError(f"{p / MANIFEST}: no trained members")
     members = [_load_member(p, e) for e in entries]
+    _check_shapes(p / MANIFEST, config, len(columns), members)
     model = RulModel(config, columns, scaler, members, conformal,
                      info={"hyprog_version": version, "path": str(p),
                            "dropped_constant": dropped})

@@ -31,6 +31,7 @@ is.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -117,6 +118,14 @@ class RulModel:
         x = self.scaler.transform_frame(frame, source=source)
         unit = frame["unit"].to_numpy()
         a, b = segments(unit, np.zeros(len(unit), np.int8))
+        short = np.flatnonzero(b - a < self.window)
+        if short.size and not cfg.per_flight:  # a flight model pads by design (windows.py)
+            names = ", ".join(str(int(unit[a[i]])) for i in short[:10])
+            more = f" and {short.size - 10} more" if short.size > 10 else ""
+            warnings.warn(f"{source}: unit(s) {names}{more} have fewer samples than the "
+                          f"window ({self.window}): each gets one prediction, at its last "
+                          "sample, from a window left-padded with its first sample",
+                          UserWarning, stacklevel=2)
         win = make_windows(x, a, b, self.window, 1, pad_all=cfg.per_flight)
         dev = resolve_device(device)
         nets = self.networks(dev)

@@ -165,6 +165,13 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         rows = "flights" if cfg.per_flight else "rows"
         raise InputError(f"{source}: window {cfg.window} is longer than the longest development "
                          f"unit ({longest} {rows})")
+    for what, given in (("validation", cfg.val_units or ()),
+                        ("conformal", cfg.conformal_units)):
+        held = sorted(set(int(u) for u in given) & set(test))
+        if held:
+            raise InputError(f"{source}: {what} unit(s) {', '.join(map(str, held))} are test "
+                             "units (a test unit is only ever evaluated; choose development "
+                             f"units: {', '.join(map(str, sorted(dev)))})")
     n_fit = len(set(dev) - set(cfg.conformal_units))
     cfg = replace(cfg, validation=cfg.validation_for(n_fit))
     roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,

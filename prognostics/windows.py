@@ -31,6 +31,7 @@ its **last** row (the prediction is made with the data seen so far).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,6 +83,14 @@ class Windows:
                        tgt)
 
 
+def memory_bytes() -> int:
+    """The machine's physical memory [bytes] (POSIX ``sysconf``; 64 GiB where unknown)."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
+        return 64 * 2**30
+
+
 def make_windows(x: np.ndarray, seg_starts: np.ndarray, seg_ends: np.ndarray, length: int,
                  stride: int = 1, target: np.ndarray | None = None,
                  pad_all: bool = False) -> Windows:
@@ -102,6 +111,12 @@ def make_windows(x: np.ndarray, seg_starts: np.ndarray, seg_ends: np.ndarray, le
     if np.any(b <= a) or np.any(a < 0) or np.any(b > n_rows):
         raise InputError("windows: empty or out-of-range segment")
     pad = np.full(len(a), length - 1, np.int64) if pad_all else np.maximum(length - (b - a), 0)
+    need = (n_rows + int(pad.sum())) * x.shape[1] * 4 if x.ndim == 2 else 0
+    if pad.any() and need > memory_bytes() // 2:
+        raise InputError(f"windows of {length} rows over {len(a)} segment(s) of at most "
+                         f"{int((b - a).max())} rows would need {need / 2**30:,.0f} GiB of "
+                         f"padding (this machine has {memory_bytes() / 2**30:,.0f} GiB): the "
+                         "window is far longer than the data")
     if pad.any():
         repeats = np.ones(n_rows, dtype=np.int64)
         np.add.at(repeats, a, pad)

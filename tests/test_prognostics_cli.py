@@ -228,9 +228,13 @@ def test_a_checkpoint_from_another_version(runner, model_dir, features_parquet, 
     shutil.copytree(model_dir, d)
     resign_manifest(d, hyprog_version="0.0.1")
     r = ok(run(runner, "evaluate", d, features_parquet, "--json"))
+    rep = json.loads(r.stdout)  # --json: the warning is in the report's warnings
+    assert r.stderr == "" and len(rep["warnings"]) == 1
+    assert "written by hyprog 0.0.1" in rep["warnings"][0]
+    assert rep["samples"]["overall"]["n"] > 0
+    r = ok(run(runner, "evaluate", d, features_parquet))
     assert r.stderr.startswith("warning: ") and "written by hyprog 0.0.1" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
-    assert json.loads(r.stdout)["samples"]["overall"]["n"] > 0
     resign_manifest(d, format_version=99)
     assert_user_error(run(runner, "evaluate", d, features_parquet), "format version 99",
                       "retrain")
@@ -411,3 +415,82 @@ def test_evaluate_reports_accuracy_over_life_and_error_by_rul(runner, model_dir,
     assert "relative accuracy" in table and "true RUL" in table
     # a pipe is not a terminal: the table is as wide as it needs, headers whole
     assert "last cycle" in table and "horizon" in table and "…" not in table
+
+
+def test_an_edited_window_in_the_manifest_is_refused_before_allocating(runner, model_dir,
+                                                                       features_parquet,
+                                                                       tmp_path):
+    """Issue 31: a model.json saying ``window: 1e9`` (hash recomputed) made evaluate allocate
+    200 GB; the weights are now checked against a network built on the meta device."""
+    d = tmp_path / "edited"
+    shutil.copytree(model_dir, d)
+    body = json.loads((d / "model.json").read_text())
+    resign_manifest(d, config={**body["config"], "window": 1_000_000_000})
+    r = run(runner, "evaluate", d, features_parquet)
+    assert_user_error(r, "model.json", "window 1000000000", "do not fit")
+    assert str(features_parquet) not in r.stderr  # a model error names the model
+
+
+def test_windows_longer_than_memory_allows_are_refused():
+    from engine_model.validation import InputError
+    from prognostics.windows import make_windows
+
+    x = np.zeros((10, 3), np.float32)
+    with pytest.raises(InputError, match="far longer than the data"):
+        make_windows(x, np.array([0]), np.array([10]), 10**12, pad_all=True)
+
+
+def test_alpha_needs_conformal_units_and_validation_units_are_not_test_units(
+        runner, features_parquet, tmp_path):
+    out = tmp_path / "m"
+    r = run(runner, "train", features_parquet, "--model", "fnn", *FAST, "--alpha", "0.2",
+            "--out", out)
+    assert_user_error(r, "--alpha 0.2", "--conformal-units")
+    r = run(runner, "train", features_parquet, "--model", "fnn", *FAST, "--val-units", "5",
+            "--out", out)
+    assert_user_error(r, "validation unit(s) 5 are test units")
+    assert not out.exists()
+
+
+def test_json_reports_carry_their_warnings(runner, model_dir, features_parquet, tmp_path):
+    """Issue 31: ``--json`` output has a ``warnings`` list (the README says so), empty when
+    nothing was said; a unit shorter than the window is said, not silently scored."""
+    m = json.loads(ok(run(runner, "evaluate", model_dir, features_parquet, "--json")).stdout)
+    assert m["warnings"] == []
+    df, meta = read_dataset(features_parquet)
+    short = df[(df.unit == 6) & (df.cycle == 1)].head(5)
+    data = write_parquet(pd.concat([df[df.unit == 5], short]), tmp_path / "short.parquet",
+                         meta)
+    r = ok(run(runner, "evaluate", model_dir, data, "--json"))
+    said = json.loads(r.stdout)["warnings"]
+    assert len(said) == 1 and "unit(s) 6 have fewer samples than the window (8)" in said[0]
+    assert r.stderr == ""  # in --json mode the warning is in the report only
+    r = ok(run(runner, "evaluate", model_dir, data))
+    assert r.stderr.startswith("warning: ") and "unit(s) 6" in r.stderr
+
+
+def test_experiment_refuses_a_seed_listed_twice(runner, features_parquet, tmp_path):
+    r = run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+            tmp_path / "e", "--seeds", "1,1")
+    assert_user_error(r, "--seeds 1,1", "seed(s) 1 listed twice")
+    assert not (tmp_path / "e").exists()
+
+
+@pytest.mark.parametrize("raised, named", [
+    (OSError(28, "No space left on device"), "out.csv: No space left on device"),
+    (OSError(28, "No space left on device", "/data/.out.csv.tmp-123"),
+     "out.csv: No space left on device"),
+    (FileNotFoundError(2, "No such file", "/data/in.parquet"), "/data/in.parquet: no such"),
+])
+def test_write_errors_name_the_output_not_a_temporary(raised, named, capsys):
+    """Issue 31: a full disk said ``error: None: Error writing bytes`` or named the input;
+    an ``--out`` error named the hidden temporary."""
+    import typer
+
+    from cli.common import user_errors
+
+    with pytest.raises(typer.Exit), user_errors("in.parquet", output="out.csv"):
+        raise raised
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and named in err and "None" not in err, err
+    assert ".tmp-" not in err

@@ -206,10 +206,12 @@ def _summary_blocks(ev: dict, acc: dict | None, cal: dict, disc: dict | None,
                    + (f"; the ±1.96 σ band holds the truth for {min(cov):.1%} to "
                       f"{max(cov):.1%} of the samples (nominal 95 %)" if cov else "")
                    + (f"; warnings: {'; '.join(cal['warnings'])}." if cal["warnings"] else "."))
+    said = [f"{k}: {w}" for k, e in ev.items() for w in e.get("warnings", [])]
     return [("h", 2, "Summary"),
             ("p", "Remaining useful life of each test unit at its last observed cycle, in "
                   "cycles" + (" (interval: split-conformal)" if interval else "") + "."),
-            ("table", head, rows), ("p", verdict), ("p", quality)]
+            ("table", head, rows), ("p", verdict), ("p", quality),
+            *([("p", "Warning: " + "; ".join(said))] if said else [])]
 
 
 def _rul_blocks(ev: dict, figs: dict, trained: dict) -> list:

@@ -186,7 +186,11 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
            "evaluate": ev["fp"], "discover": None if disc is None else disc["fp"]}
     step("report", {"config": results_config(cfg)}, rin,
          lambda c, folder: report.write(out, cfg, summaries, dict(timings)))
+    said = [f"calibrate: {w}" for w in summaries["calibrate"].get("warnings", [])]
+    said += [f"evaluate ({k}): {w}" for k, v in summaries["evaluate"].items()
+             for w in v.get("warnings", [])]
     result = {"out": str(out), "data": label, "stages": timings,
+              "warnings": list(dict.fromkeys(said)),
               "seconds": sum(v["seconds"] for v in timings.values()),
               "files": summaries["report"]["files"],
               "split": summaries["features"]["split"],

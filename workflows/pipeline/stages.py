@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -351,9 +352,13 @@ def evaluate(ctx: Context, folder: Path, feats: dict, trained: dict) -> dict:
     out = {}
     for inputs, t in trained.items():
         model = load_model(ctx.path(t["model"]))
-        metrics, pred = model.evaluate(df, test, ctx.config["train"]["device"],
-                                       source=str(table))
+        with warnings.catch_warnings(record=True) as caught:  # kept with the stage's result
+            warnings.simplefilter("always", UserWarning)
+            metrics, pred = model.evaluate(df, test, ctx.config["train"]["device"],
+                                           source=str(table))
         path = folder / f"{inputs}.predictions.parquet"
         write_table(path, pred)
-        out[inputs] = {"metrics": metrics, "predictions": ctx.rel(path)}
+        said = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught
+                                  if issubclass(w.category, UserWarning)))
+        out[inputs] = {"metrics": metrics, "predictions": ctx.rel(path), "warnings": said}
     return _round_trip(out)
