@@ -119,6 +119,7 @@ class FleetRun:
     sensors: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
     effects: list = field(default_factory=list)
+    metadata: dict = field(default_factory=dict)  # the data's, with the calibration record
 
     @property
     def samples(self) -> int:
@@ -418,7 +419,8 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     if model_source:
         calib_meta["model_effects"] = dict(model_source)
     run = FleetRun(method=method, setup=setup, options=options,
-                   out=None if out is None else str(out), effects=specs)
+                   out=None if out is None else str(out), effects=specs,
+                   metadata={**meta, "calibration": calib_meta})
     records = check_inputs(data, df_all, lengths, setup, source, check_data, specs)
     lengths = {u: records[u]["rows"] for u in lengths}
     run.sensors = list(records[min(records)]["sensors"])
@@ -520,6 +522,27 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
     run.warnings = [w for rec in run.units.values() for w in rec["warnings"]]
     run.seconds = time.perf_counter() - t0
     return run
+
+
+def calibrate(data, method: str = "ukf", setup: CalibrationSetup | None = None,
+              jobs: int = 1, effects: Sequence = (),
+              progress: Callable[[int, int], None] | None = None) -> datasets.Dataset:
+    """The library's one-call calibration: θ̂(t) of every unit of ``data`` (a
+    :class:`~engine_model.datasets.Dataset`, a dataset path or a DataFrame) with ``method``,
+    returned as the feature table (a Dataset: the data, ``<channel>_hat``, ``<q>_hat`` and
+    ``<q>_hat_std`` per sample; its metadata the data's with the ``calibration`` record). The
+    same numbers as ``hyprog calibrate``; :func:`calibrate_fleet` writes to disk, resumes and
+    reports per unit::
+
+        from calibration import calibrate
+        features = calibrate(load_sample(), "ukf")  # engine_model.datasets.load_sample
+    """
+    frame = data.frame if isinstance(data, datasets.Dataset) else data
+    run = calibrate_fleet(frame, method, setup, jobs=jobs, effects=effects, progress=progress)
+    meta = dict(data.metadata) if isinstance(data, datasets.Dataset) else dict(run.metadata)
+    meta["calibration"] = run.metadata["calibration"]
+    source = data.source if isinstance(data, datasets.Dataset) else "table"
+    return datasets.Dataset(features_of(run), meta, source)
 
 
 def features_of(run: FleetRun) -> pd.DataFrame:

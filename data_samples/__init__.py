@@ -13,8 +13,9 @@ resource                                      what it is
                                               ``hyprog model reference``
 ============================================  ================================================
 
-    from data_samples import sample_path
-    df, meta = engine_model.datasets.read_dataset(sample_path("tiny"))
+    from engine_model.datasets import load_sample
+    fleet = load_sample()                 # a Dataset: table, metadata, split
+    path = sample_path("tiny")            # where it lies, for the command line
 """
 
 from __future__ import annotations

@@ -12,6 +12,10 @@ One job per module:
 - :mod:`.train_config` :class:`~.train_config.TrainConfig`, what defines a training run
 - :mod:`.training`     the training loop of one network (AMSGrad, early stopping, seeds)
 - :mod:`.ensemble`     a trained model (one network per seed), :func:`~.ensemble.fit`, predictions
+- :mod:`.estimator`    :class:`~.estimator.RulEstimator`: ``fit`` / ``predict`` / ``evaluate`` /
+  ``save`` / ``load``, the library's entry point
+- :mod:`.results`      :class:`~.results.Evaluation`: metrics as a typed object,
+  ``to_frame()`` / ``to_json()``
 - :mod:`.conformal`    split-conformal prediction intervals
 - :mod:`.checkpoint`   safe save / load (safetensors + JSON, SHA-256 checked)
 - :mod:`.metrics`      RMSE, NASA score, per-cycle mean, prediction horizon, coverage
@@ -28,3 +32,34 @@ the pipeline and the paper's experiment); the physics baseline uses the engine m
 :mod:`engine_model.physics.health_index`. It is the only package of hyprog that imports torch;
 importing ``prognostics`` itself does not (the modules that need it import it).
 """
+
+from importlib import import_module
+
+# name -> submodule that defines it, imported on first use (PEP 562): ``import prognostics``
+# stays free of torch, ``from prognostics import RulEstimator`` works
+_LAZY = {
+    "RulEstimator": "estimator",
+    "Evaluation": "results",
+    "RulModel": "ensemble",
+    "fit": "ensemble",
+    "TrainConfig": "train_config",
+    "load_model": "checkpoint",
+    "save_model": "checkpoint",
+    "evaluate_predictions": "metrics",
+    "per_cycle": "metrics",
+    "resolve_inputs": "features",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

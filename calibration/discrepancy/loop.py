@@ -92,6 +92,26 @@ class Discovery:
                 "screens": self.screens, "rejected": self.rejected,
                 "diagnostics": self.diagnostics}
 
+    def to_json(self) -> str:
+        """The report as JSON (``discover.json``, NaN as null)."""
+        import json
+
+        from engine_model.datasets.jsonable import jsonable
+
+        return json.dumps(jsonable(self.to_dict()), indent=2, allow_nan=False)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per candidate and screening iteration: ``iteration``, ``candidate``,
+        ``effect``, score ``statistic``, ``df``, ``p_value``, ``significant`` and whether it
+        was ``added`` to the model."""
+        added = {f["name"] for f in self.found}
+        rows = [{"iteration": s["iteration"], "candidate": c["name"], "effect": c["effect"],
+                 "statistic": c["statistic"], "df": c["df"], "p_value": c["p_value"],
+                 "significant": c["significant"], "added": c["name"] in added}
+                for s in self.screens for c in s["candidates"]]
+        return pd.DataFrame(rows, columns=["iteration", "candidate", "effect", "statistic",
+                                           "df", "p_value", "significant", "added"])
+
 
 def _channel_stats(problem: Problem, state: FitState, masks=None) -> dict:
     """Per channel on the (masked) samples: RMSE and bias of the whitened residual (noise

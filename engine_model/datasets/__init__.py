@@ -18,6 +18,7 @@ module          what is inside
 ``ncmapss_h5``  the N-CMAPSS h5 layout of the published files
 ``dispatch``    :func:`read_dataset` / :func:`write_dataset` / :func:`read_metadata` /
                 :func:`read_columns` for either format
+``dataset``     :class:`Dataset`: a table, its metadata and its split as one object
 ``summary``     :func:`summarize` (``hyprog data info``)
 ``cmapss``      the C-MAPSS (2008) text files (train / test / RUL) read into the same table
 ==============  ===============================================================================
@@ -34,6 +35,7 @@ from .cmapss import (
     read_cmapss_text,
     read_rul_file,
 )
+from .dataset import Dataset, load_sample
 from .dispatch import read_columns, read_dataset, read_metadata, write_dataset
 from .metadata import META_KEY, SAMPLE_RATE_KEY, hyprog_version
 from .ncmapss_h5 import (
@@ -70,6 +72,7 @@ from .schema import (
 from .summary import summarize
 
 __all__ = [
+    "Dataset", "load_sample",
     "BOOKKEEPING", "REQUIRED_COLUMNS", "INT_KEYS", "INT_OPTIONAL", "SPLITS", "META_KEY",
     "SAMPLE_RATE_KEY", "NCMAPSS_SOURCE", "DEFAULT_H5_RATE_HZ", "PARQUET_PART",
     "PARQUET_COMPRESSION", "H5_SUFFIXES", "H5_GROUPS", "H5_REQUIRED", "H5_INT_GROUPS",

@@ -1,0 +1,73 @@
+"""The public surface of each package (issue 31): the names a script imports exist, are
+documented and typed (``py.typed`` in every package); the typed objects refuse what they
+cannot do with one clear error."""
+
+import importlib
+
+import pytest
+
+from engine_model.validation import InputError
+from tests.conftest import REPO
+
+SURFACE = {
+    "engine_model.datasets": ("Dataset", "load_sample", "read_dataset", "write_dataset"),
+    "calibration": ("calibrate", "calibrate_fleet", "CalibrationSetup", "FleetRun"),
+    "calibration.discrepancy": ("discover", "DiscoverOptions", "Discovery"),
+    "prognostics": ("RulEstimator", "Evaluation", "RulModel", "TrainConfig", "fit",
+                    "load_model", "save_model", "evaluate_predictions", "resolve_inputs"),
+}
+
+
+@pytest.mark.parametrize("module", sorted(SURFACE))
+def test_the_public_names_exist_and_are_documented(module):
+    mod = importlib.import_module(module)
+    for name in SURFACE[module]:
+        assert name in mod.__all__, (module, name)
+        obj = getattr(mod, name)
+        assert (obj.__doc__ or "").strip(), f"{module}.{name} has no docstring"
+
+
+def test_every_package_is_typed():
+    for package in ("engine_model", "calibration", "prognostics", "workflows", "cli",
+                    "data_samples"):
+        assert (REPO / package / "py.typed").is_file(), package
+
+
+def test_importing_prognostics_does_not_import_torch():
+    import subprocess
+    import sys
+
+    code = "import sys, prognostics; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_dataset_split_and_selection():
+    from engine_model.datasets import load_sample
+
+    fleet = load_sample()
+    assert fleet.units == [1, 2, 3, 4]
+    assert fleet.dev_units == [1, 2, 3] and fleet.test_units == [4]
+    assert fleet.test().units == [4] and fleet.development().units == [1, 2, 3]
+    assert [int(f["unit"].iloc[0]) for f in fleet.unit_frames()] == [1, 2, 3, 4]
+    with pytest.raises(InputError, match=r"unit\(s\) 9 not in the table"):
+        fleet.select([9])
+    bare = type(fleet)(fleet.frame, {})
+    with pytest.raises(InputError, match="names no test_units"):
+        bare.test()
+
+
+def test_estimator_refuses_what_it_cannot_do():
+    from prognostics import RulEstimator
+
+    with pytest.raises(InputError, match="unknown option.*epoch"):
+        RulEstimator(epoch=3)
+    with pytest.raises(InputError, match="window must be >= 1"):
+        RulEstimator(window=0)
+    with pytest.raises(InputError, match="ensemble must be >= 1"):
+        RulEstimator(ensemble=0)
+    est = RulEstimator(model="fnn")
+    with pytest.raises(InputError, match="not fitted"):
+        est.predict(None)
+    assert "not fitted" in repr(est) and "model='fnn'" in repr(est)
