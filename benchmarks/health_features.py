@@ -95,12 +95,16 @@ def key_of(body: dict) -> str:
 
 
 def scores(pred: pd.DataFrame) -> dict:
-    """RMSE overall and by phase, last cycle, horizon, unit 15 after onset."""
+    """RMSE overall and by phase, last cycle, horizon, accuracy over life (α-λ, relative
+    accuracy), error by true RUL, unit 15 after onset."""
     m = evaluate_predictions(pred)
     out = {"rmse": m["samples"]["overall"]["rmse"], "score": m["samples"]["overall"]["score"],
            "last_rmse": m["last"]["overall"]["rmse"], "horizon": m["horizon"]["mean"],
            "horizon_units": m["horizon"]["units"],
-           "phases": {k: v["rmse"] for k, v in m["samples"]["phases"].items()}}
+           "phases": {k: v["rmse"] for k, v in m["samples"]["phases"].items()},
+           "alpha_lambda": {"fraction_within": m["alpha_lambda"]["fraction_within"],
+                            "relative_accuracy": m["alpha_lambda"]["relative_accuracy"]},
+           "error_by_rul": m["error_by_rul"]}
     u15 = pred[(pred["unit"] == UNIT_15) & (pred["hs"] == 0)] if "hs" in pred.columns else []
     if len(u15):
         d = u15["RUL"].to_numpy(float) - u15["RUL_pred"].to_numpy(float)

@@ -118,14 +118,20 @@ def t_interval(x: np.ndarray) -> tuple[float, float, float]:
 
 
 def report(runs: list[dict], results: Path) -> str:
+    def life(v: dict) -> dict:  # accuracy over life at λ = 0.5 (runs before it: NaN)
+        al = v.get("alpha_lambda")
+        return {"within_0.5": al["fraction_within"]["0.5"] if al else np.nan,
+                "ra_0.5": al["relative_accuracy"]["0.5"] if al else np.nan}
+
     rows = []
     for r in runs:
         if r["kind"] == "model":
             rows.append({"fleet": r["fleet"], "n": r["n"], "predictor": r["predictor"],
-                         "rmse": r["ensemble"]["rmse"], "horizon": r["ensemble"]["horizon"]})
+                         "rmse": r["ensemble"]["rmse"], "horizon": r["ensemble"]["horizon"],
+                         **life(r["ensemble"])})
         else:
             rows += [{"fleet": r["fleet"], "n": r["n"], "predictor": f"floor: {k}",
-                      "rmse": v["rmse"], "horizon": v["horizon"]}
+                      "rmse": v["rmse"], "horizon": v["horizon"], **life(v)}
                      for k, v in r["floors"].items()]
     if not rows:
         return "no runs yet"
@@ -155,6 +161,15 @@ def report(runs: list[dict], results: Path) -> str:
                 diffs.append("-")
         lines.append(f"| {n} | {p.shape[0]} | " + " | ".join(cells) + " | " +
                      " | ".join(diffs) + " |")
+    lines += ["", "Accuracy over life at λ = 0.5 (half-way from a unit's first prediction to its "
+              "failure; Saxena et al. 2010): the fraction of test units whose prediction lies "
+              "within ±20 % of the true RUL, and the mean relative accuracy; mean over the "
+              "fleets whose runs recorded it (runs cached before it was added did not).", "",
+              "| n units | predictor | fleets | within ±20 % | relative accuracy |",
+              "|---|---|---|---|---|"]
+    for (n, pred), g in t.dropna(subset=["within_0.5"]).groupby(["n", "predictor"]):
+        lines.append(f"| {n} | {pred} | {g['fleet'].nunique()} | {g['within_0.5'].mean():.2f} "
+                     f"| {g['ra_0.5'].mean():.2f} |")
     text = "\n".join(lines) + "\n"
     (results / "study.md").write_text(text)
     import matplotlib
