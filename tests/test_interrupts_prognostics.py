@@ -319,6 +319,25 @@ def test_sigint_of_discover_is_one_line_and_leaves_nothing(tmp_path, discovered)
     assert list(folder.iterdir()) == []
 
 
+@pytest.mark.parametrize("phase", ["building the candidate model", "null fit"])
+def test_sigterm_of_discover_is_honoured_in_its_numerical_loops(tmp_path, discovered, phase):
+    """Issue 31: SIGTERM sent to a long discover left it computing for over a minute. Sent
+    while the candidates are built and inside the null fit, it ends the run with exit 143,
+    one line, nothing left (Terminal.signal waits at most 120 s; the run itself takes longer
+    than that on these units only if the signal is not honoured)."""
+    data, _ = discovered
+
+    def attempt(folder):
+        run = Terminal("discover", data, *DISCOVER, "--out", folder / "report")
+        run.wait_for_text(phase)
+        return run.signal(signal.SIGTERM)
+
+    folder, code, lines = interrupt(tmp_path, attempt)
+    assert code == 143, lines
+    assert lines[-1] == "error: terminated", lines
+    assert list(folder.iterdir()) == []
+
+
 # ----------------------------------------------------------------------------- experiment
 EXPERIMENT = ("--seeds", "1", "--epochs", "1", "--ablations", "none", "--no-baseline",
               "--device", "cpu")

@@ -258,6 +258,7 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     ("[train]\nepochs = -2\n", ["[train] epochs", "-2"]),
     ("[train]\nwindow = 0\n", ["[train] window", "0"]),
     ("[train]\nmax_rul = -5\n", ["[train] max_rul", "-5"]),
+    ("[train]\nmax_rul = nan\n", ["[train] max_rul", "nan"]),
     ("[train]\nlr = -1\n", ["[train] lr", "-1"]),
     ("[train]\nbatch_size = 0\n", ["[train] batch_size", "0"]),
     ("[train]\ninputs = [\"bogus\"]\n", ["[train] inputs", "bogus", "input set"]),
@@ -265,8 +266,8 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     ("[discover]\nalpha = 1.5\n", ["[discover] alpha", "1.5"]),
     ("[calibrate]\ndrift = -0.01\n", ["[calibrate] drift", "-0.01"]),
     ("[simulate]\neffects = [\"customer_bleed\"]\n", ["[simulate]", "customer_bleed:f0="]),
-], ids=["epochs", "window", "max_rul", "lr", "batch_size", "inputs", "test_units", "alpha",
-        "drift", "neutral-effect"])
+], ids=["epochs", "window", "max_rul", "max_rul-nan", "lr", "batch_size", "inputs",
+        "test_units", "alpha", "drift", "neutral-effect"])
 def test_bad_config_values_are_refused_before_any_stage(runner, tmp_path, toml, fragments):
     """Issue 31: these failed only after calibrate (and discover) ran, naming neither the file
     nor the key (``--alpha 1.5``, ``drift_std_per_sqrt_h``): now one line naming both, and

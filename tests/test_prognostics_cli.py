@@ -494,3 +494,17 @@ def test_write_errors_name_the_output_not_a_temporary(raised, named, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and named in err and "None" not in err, err
     assert ".tmp-" not in err
+
+
+def test_quiet_prints_nothing_but_the_result_files(runner, model_dir, features_parquet,
+                                                  tmp_path):
+    """Issue 31: ``predict --quiet`` still printed its "wrote ..." line; --quiet now prints
+    nothing on a success (the result is in --out), while evaluate's table is its result."""
+    out = tmp_path / "p.csv"
+    r = ok(run(runner, "predict", model_dir, features_parquet, "--out", out, "--quiet"))
+    assert r.stdout == "" and r.stderr == "" and out.is_file()
+    m = tmp_path / "m"
+    r = ok(run(runner, "train", features_parquet, "--model", "fnn", *FAST, "--out", m))
+    assert r.stdout == "" and r.stderr == "" and (m / "model.json").is_file()
+    r = ok(run(runner, "evaluate", model_dir, features_parquet, "--quiet"))
+    assert "RMSE" in r.stdout and r.stderr == ""
