@@ -48,7 +48,7 @@ def adapt(
     Example:
       hyprog adapt fd002 --out adapted.json
     """
-    with user_errors(data):
+    with user_errors(data, output=out):
         from calibration.adaptation import adapt as run
         from calibration.adaptation import write_adapted
         from calibration.adaptation.artefact import ADAPTED_MODEL

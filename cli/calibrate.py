@@ -133,7 +133,7 @@ def run(
     from calibration.unit_check import AT_BOUND, summarise_bound_hits
     from engine_model.channels import XS_NAMES
 
-    with user_errors(), warnings.catch_warnings(record=True) as caught:
+    with user_errors(output=out), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnobservableWarning)
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
         opts = _options(method, window, stride, mode, hessian)

@@ -91,7 +91,7 @@ def import_cmapss(
     """
     from engine_model import datasets, runtime
 
-    with user_errors():
+    with user_errors(output=out):
         if (test is None) != (rul is None):
             raise CliError("give --test and --rul together (the RUL file belongs to the test"
                            " file)")

@@ -77,7 +77,7 @@ def discover(
     Example:
       hyprog discover data_samples/tiny --method ukf --out discover-report
     """
-    with user_errors(data):
+    with user_errors(data, output=out):
         from calibration import CalibrationSetup
         from calibration.discrepancy import DiscoverOptions
         from calibration.discrepancy import discover as run

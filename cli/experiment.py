@@ -76,7 +76,7 @@ def paper(
     from engine_model.datasets import read_dataset
     from workflows.paper import PARTS, ExperimentConfig, run_experiment
 
-    with user_errors(data):
+    with user_errors(data, output=out):
         if ablations == "all":
             parts = PARTS
         elif ablations == "none":

@@ -53,7 +53,7 @@ def pipeline(
     from workflows.pipeline import load_config, run_pipeline
     from workflows.pipeline.config import merge
 
-    with caught_warnings() as warned, user_errors():
+    with caught_warnings() as warned, user_errors(output=out):
         cfg = load_config(config)
         if augment:
             cfg["discover"]["augment"] = True

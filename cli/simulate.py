@@ -65,7 +65,7 @@ def simulate(
     from engine_model.physics.effects import parse_effect_spec
     from engine_model.simulator import fleet
 
-    with user_errors():
+    with user_errors(output=out):
         if record is not None:
             check_choice(record, "--record", RECORDS)
         if seed < 0:

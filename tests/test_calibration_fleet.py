@@ -257,7 +257,7 @@ def test_cli_compare_json(small):
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["--method", "pf"], "unknown calibration method 'pf'"),
+    (["--method", "pf"], "'pf' is not one of 'ukf', 'ekf', 'mhe', 'map_cycle'"),
     (["--params", "HPT_eff"], "unknown health parameter(s) HPT_eff"),
     (["--sensors", "T99"], "unknown sensor(s) T99"),
     (["--window", "30"], "--window: options of the mhe method, not ukf"),

@@ -11,7 +11,7 @@ from tests.conftest import REPO
 
 SURFACE = {
     "engine_model.datasets": ("Dataset", "load_sample", "read_dataset", "write_dataset"),
-    "calibration": ("calibrate", "calibrate_fleet", "CalibrationSetup", "FleetRun"),
+    "calibration": ("calibrate", "CalibrationSetup", "FleetRun"),
     "calibration.discrepancy": ("discover", "DiscoverOptions", "Discovery"),
     "prognostics": ("RulEstimator", "Evaluation", "RulModel", "TrainConfig", "fit",
                     "load_model", "save_model", "evaluate_predictions", "resolve_inputs"),
@@ -71,3 +71,24 @@ def test_estimator_refuses_what_it_cannot_do():
     with pytest.raises(InputError, match="not fitted"):
         est.predict(None)
     assert "not fitted" in repr(est) and "model='fnn'" in repr(est)
+
+
+def test_cli_choices_are_the_librarys():
+    """The CLI lists its choices without importing the library (fast --help); they must be
+    the library's own names."""
+    import typing
+
+    import typer
+
+    from calibration.base import ESTIMATORS
+    from cli.main import app
+    from prognostics.train_config import MODEL_KINDS
+
+    def choices(command, name):
+        param = next(p for p in command.params if p.name == name)
+        return typing.get_args(param.type_descriptor.annotation)
+
+    root = typer.main.get_command(app)
+    assert choices(root.commands["calibrate"].commands["run"], "method") == tuple(ESTIMATORS)
+    assert set(choices(root.commands["discover"], "method")) == {"coarse", *ESTIMATORS}
+    assert choices(root.commands["train"], "model") == MODEL_KINDS

@@ -312,3 +312,18 @@ def test_refused_data_leaves_nothing_behind(runner, tmp_path):
     assert_one_line_error(r, str(data), "unit 4")
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kpa"]
+
+
+def test_a_test_unit_shorter_than_the_window_is_a_warning(tmp_path):
+    """Issue 31: a pipeline whose test units are shorter than the window reported an RMSE
+    over one left-padded sample with no word; now the JSON summary and the report's summary
+    say so (unit 4 has 2,853 samples, unit 3 3,617; window 3,000)."""
+    cfg = tmp_path / "short.toml"
+    cfg.write_text("[data]\nunits = [3, 4]\n[discover]\nenabled = false\n[train]\n"
+                   "model = \"cnn\"\nwindow = 3000\nepochs = 1\ninputs = [\"data-driven\"]\n")
+    out = tmp_path / "out"
+    r = hyprog("pipeline", "--config", cfg, "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    said = json.loads(r.stdout)["warnings"]
+    assert any("unit(s) 4 have fewer samples than the window (3000)" in w for w in said), said
+    assert "Warning: data-driven: " in (out / "report.md").read_text()

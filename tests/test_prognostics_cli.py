@@ -508,3 +508,34 @@ def test_quiet_prints_nothing_but_the_result_files(runner, model_dir, features_p
     assert r.stdout == "" and r.stderr == "" and (m / "model.json").is_file()
     r = ok(run(runner, "evaluate", model_dir, features_parquet, "--quiet"))
     assert "RMSE" in r.stdout and r.stderr == ""
+
+
+def test_a_full_disk_names_the_output(runner, model_dir, features_parquet, tmp_path,
+                                      monkeypatch):
+    """Issue 31, through the CLI: a failed write named a hidden temporary (``--out``), the
+    input (predict, train) or ``None`` (import-cmapss: pyarrow's error has no file name)."""
+    import engine_model.datasets as datasets_module
+    import prognostics.outputs as outputs_module
+
+    out = tmp_path / "p.csv"
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device", str(tmp_path / ".p.csv.tmp-host-1"))
+
+    monkeypatch.setattr(outputs_module, "write_predictions", full)
+    r = run(runner, "predict", model_dir, features_parquet, "--out", out)
+    assert_user_error(r, f"{out}: No space left on device")
+    assert ".tmp-" not in r.stderr and str(features_parquet) not in r.stderr
+
+    train = tmp_path / "train_FD001.txt"
+    train.write_text("".join(f"1 {c} 0.0 0.0 100.0 " + " ".join(["500.0"] * 21) + "  \n"
+                             for c in range(1, 6)))
+
+    def pyarrow_full(*args, **kwargs):
+        raise OSError("Error writing bytes to file. Detail: [errno 28] No space left on "
+                      "device")
+
+    monkeypatch.setattr(datasets_module, "write_parquet", pyarrow_full)
+    r = run(runner, "data", "import-cmapss", train, "--out", tmp_path / "fd001")
+    assert_user_error(r, f"{tmp_path / 'fd001'}: Error writing bytes")
+    assert "None" not in r.stderr
