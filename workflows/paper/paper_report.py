@@ -67,6 +67,40 @@ def run_rows(records: list[dict], base: dict | None) -> pd.DataFrame:
     return out
 
 
+def life_table(runs: list[tuple[dict, pd.DataFrame]]) -> pd.DataFrame:
+    """Accuracy over life (:func:`prognostics.metrics.lambda_accuracy`: α-λ at α = 0.2 and
+    relative accuracy, per λ) of every configuration, mean ± std over its seeds, from each
+    run's record and per-cycle predictions (``unit``, ``cycle``, ``RUL``, ``mean``)."""
+    from prognostics.metrics import LAMBDAS, lambda_accuracy
+
+    rows = []
+    for rec, pc in runs:
+        run = rec["run"]
+        al = lambda_accuracy(pc)
+        row = {"part": run["part"], "model": run["model"], "inputs": run["inputs"],
+               "perturbation": run.get("perturbation") or "", "seed": run["seed"]}
+        for lam in LAMBDAS:
+            row[f"within_{lam:g}"] = al["fraction_within"][f"{lam:g}"]
+            row[f"ra_{lam:g}"] = al["relative_accuracy"][f"{lam:g}"]
+        rows.append(row)
+    if not rows:
+        return pd.DataFrame()
+    t = pd.DataFrame(rows)
+    by = ["part", "model", "inputs", "perturbation"]
+    out = []
+    for key, g in t.groupby(by, sort=True):
+        row = dict(zip(by, key, strict=True))
+        row["runs"] = len(g)
+        for lam in LAMBDAS:
+            w, ra = g[f"within_{lam:g}"], g[f"ra_{lam:g}"]
+            row[f"within ±20 % at λ {lam:g}"] = _pm(w.mean(), w.std(ddof=1) if len(g) > 1
+                                                    else np.nan, ".2f")
+            row[f"RA at λ {lam:g}"] = _pm(ra.mean(), ra.std(ddof=1) if len(g) > 1
+                                          else np.nan, ".2f")
+        out.append(row)
+    return pd.DataFrame(out)
+
+
 def _agg(rows: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     g = rows.groupby(by, sort=False)
     out = g.size().rename("runs").reset_index()
@@ -345,7 +379,13 @@ def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataF
     sections = {"main": ("Main table: data-driven vs hybrid (test units, mean ± std over seeds)",
                          main),
                 "horizon": ("Prediction horizon t_EOL - t(|Δ| <= 5) per test unit [cycles], "
-                            "mean over seeds", _horizon_table(records, base))}
+                            "mean over seeds", _horizon_table(records, base)),
+                "life": ("Accuracy over life (Saxena et al. 2010): fraction of the test units "
+                         "within ±20 % of the true RUL at λ of their life, and relative "
+                         "accuracy, mean ± std over seeds",
+                         life_table([(r, per_cycle(pd.read_parquet(
+                             out / "runs" / r["key"] / "predictions.parquet")))
+                             for r in records]))}
     parts = set(cfg.parts)
     if "small" in parts:
         sections["small"] = (f"Ablation I: CNN trained on units "
