@@ -271,12 +271,21 @@ def input_record(df: pd.DataFrame, unit: int, sensors) -> dict:
             "sha256": rows_fingerprint(df)}
 
 
+#: Setup keys of feature tables written by an earlier hyprog -> today's name (a resumed
+#: calibration compares settings, not spellings).
+LEGACY_SETUP_KEYS = {"drift_std_per_sqrt_h": "drift"}
+
+
 def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | None) -> None:
     """The stored unit ``unit`` of ``out`` was computed with these settings and, unless
     ``record`` is None (a unit this run does not calibrate), from this input (its own
     metadata, not the first file's); InputError naming what differs."""
     part = out / f"unit={unit}" / datasets.PARQUET_PART
     stored = datasets.read_metadata(part).get("calibration") or {}
+    setup = stored.get("setup")
+    if isinstance(setup, dict):  # written before the field was renamed: the same setting
+        setup = {LEGACY_SETUP_KEYS.get(k, k): v for k, v in setup.items()}
+        stored = {**stored, "setup": setup}
     diff = _first_difference({k: v for k, v in stored.items() if k != "input"},
                              {k: v for k, v in calib_meta.items() if k != "input"})
     if diff is not None:

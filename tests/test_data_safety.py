@@ -189,6 +189,28 @@ def test_a_folder_never_mixes_settings(runner, tmp_path, small):
                  "unit 2", "drift")
 
 
+def test_a_folder_written_before_the_drift_rename_resumes(runner, tmp_path, small):
+    """``CalibrationSetup.drift`` was ``drift_std_per_sqrt_h`` (issue 31 gave the setting
+    one name): a unit written then holds the same setting under the old key, and resumes."""
+    import pyarrow.parquet as pq
+
+    data = write(*small, tmp_path / "fleet")
+    out = tmp_path / "features"
+    r = run(runner, "calibrate", data, "--units", "1", "--drift", "0.02", "--out", out)
+    assert r.exit_code == 0, r.stderr
+    part = out / "unit=1" / datasets.PARQUET_PART
+    table = pq.read_table(part)
+    meta = json.loads(table.schema.metadata[b"hyprog"])
+    setup = meta["calibration"]["setup"]
+    setup["drift_std_per_sqrt_h"] = setup.pop("drift")
+    pq.write_table(table.replace_schema_metadata({b"hyprog": json.dumps(meta).encode()}),
+                   part)
+    r = run(runner, "calibrate", data, "--units", "1", "--drift", "0.02", "--out", out,
+            "--json")
+    assert r.exit_code == 0, r.stderr
+    assert json.loads(r.stdout)["skipped"] == [1]
+
+
 # ------------------------------------------------------------------------------------------
 # 3. units of measure: the data against the model before and after estimating
 # ------------------------------------------------------------------------------------------
