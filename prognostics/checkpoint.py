@@ -51,6 +51,7 @@ import json
 import os
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from safetensors import SafetensorError
 from safetensors.torch import load as st_load
@@ -65,6 +66,9 @@ from .conformal import SplitConformal
 from .scaling import scaler_from_dict
 from .train_config import TrainConfig
 from .training import Member
+
+if TYPE_CHECKING:  # ensemble imports this module
+    from .ensemble import RulModel
 
 FORMAT = "hyprog-prognostics"
 FORMAT_VERSION = 2  # 2: size-rule config fields, per-condition scaler, dropped columns
@@ -218,7 +222,7 @@ def _check_shapes(manifest: Path, config: TrainConfig, n_inputs: int, members) -
                              "does not describe these weights")
 
 
-def load_model(path: str | os.PathLike):
+def load_model(path: str | os.PathLike) -> RulModel:
     """Read a model directory (or its ``model.json``) -> :class:`ensemble.RulModel`."""
     from .ensemble import RulModel
 

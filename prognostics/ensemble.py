@@ -176,7 +176,8 @@ class RulModel:
 
 
 def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
-        seeds: Sequence[int] | None = None, quiet: bool = True, source: str = "table"):
+        seeds: Sequence[int] | None = None, quiet: bool = True,
+        source: str = "table") -> RulModel:
     """Train one network per seed (default: ``config.seed``) on ``df`` -> a
     :class:`RulModel` (with a conformal interval when ``config.conformal_units``)."""
     prep = prepare(df, metadata, config, source)
