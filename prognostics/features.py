@@ -25,6 +25,9 @@ Groups (each resolves to the listed columns *that the table has*, in this order)
                                                             early life (flight tables)
 ``health_true`` ``HI``, ``margin_*``                        the same at the true θ
                                                             (simulation)
+``mode``       ``<q>_mode``                                 the failure mode: the direction
+                                                            of θ̂'s change since early life
+                                                            (flight tables, :mod:`.flights`)
 
 Named sets (the paper's, Sec. 4.2 and ablation III)
 ----------------------------------------------------
@@ -39,6 +42,8 @@ truth-theta     w + xs + xs_hat + xv_hat + theta             θ from the data in
 physics         health + theta_rel                           (issue 30: θ̂'s health
                                                             coordinates only)
 hybrid-health   hybrid + health + theta_rel                  (issue 30)
+physics-mode    health + theta_rel + mode                    (issue 30: with the failure mode)
+health-mode     health + mode                                (issue 30)
 ==============  ===========================================  ===============================
 
 The health groups exist in flight tables (:func:`prognostics.flights.flight_table`, which the
@@ -74,10 +79,10 @@ KEYS = ("unit", "cycle")
 TARGET = "RUL"
 
 GROUPS = ("w", "xs", "xs_hat", "xv", "xv_hat", "theta_hat", "theta", "cmapss", "health",
-          "theta_rel", "health_true")
+          "theta_rel", "health_true", "mode")
 #: health index and normalised margins (:mod:`.flights`), column stems
 HEALTH_STEMS = ("HI", "margin_fan", "margin_lpc", "margin_hpc", "margin_egt")
-HEALTH_GROUPS = ("health", "theta_rel", "health_true")
+HEALTH_GROUPS = ("health", "theta_rel", "health_true", "mode")
 
 INPUT_SETS: dict[str, tuple[str, ...]] = {
     "data-driven": ("w", "xs"),
@@ -87,6 +92,8 @@ INPUT_SETS: dict[str, tuple[str, ...]] = {
     "truth-theta": ("w", "xs", "xs_hat", "xv_hat", "theta"),
     "physics": ("health", "theta_rel"),
     "hybrid-health": ("w", "xs", "xs_hat", "xv_hat", "theta_hat", "health", "theta_rel"),
+    "physics-mode": ("health", "theta_rel", "mode"),
+    "health-mode": ("health", "mode"),
 }
 
 
@@ -123,6 +130,8 @@ def group_columns(group: str, columns: Sequence[str],
         cand = list(HEALTH_STEMS)
     elif group == "theta_rel":
         cand = [q + "_hat_rel" for q in THETA_NAMES if q + "_hat" in have] + ["HI_hat_rel"]
+    elif group == "mode":
+        cand = [q + "_mode" for q in THETA_NAMES if q + "_hat" in have]
     elif group == "theta":
         estimated = [q for q in THETA_NAMES if q + "_hat" in have]
         cand = estimated or list(THETA_NAMES)

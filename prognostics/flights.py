@@ -27,6 +27,17 @@ from the samples of flights ``1 .. c`` only: the table is causal):
   factory different (initial wear; in C-MAPSS, a model-engine mismatch that lands in θ̂):
   the change since entry into service is what degradation is, and its direction names the
   failure mode (HPT alone, or HPT with LPT, in ``ds02``).
+- **Failure mode** (issue 30): the direction of that change, ``<q>_mode``,
+
+      m_q = Δθ̂_q / sqrt(|Δθ̂|² + (3 s)²),   s² = Σ_q σ̄_q²,
+
+  with ``Δθ̂ = θ̂_c - θ̂_ref(c)`` over the estimated parameters and ``σ̄_q`` the flight's mean
+  standard deviation of θ̂_q (``<q>_hat_std``). Once the change is well above its
+  uncertainty (three standard deviations, the usual detection level) ``m`` is the unit vector
+  of the change, its direction cosines: (-1, 0, 0) for a pure HPT efficiency loss, a mix for
+  HPT with LPT; while the change is within the noise it shrinks to 0, so that no direction is
+  claimed before there is one. A physical reading, not a fitted knob: the mode is where
+  θ̂ moves, and the scale is θ̂'s own uncertainty. Without ``_hat_std`` columns, ``s = 0``.
 
 A flight model's prediction for flight ``c`` is issued at the end of that flight (the
 convention of the physics baseline, :mod:`.baseline`); on a sample table every sample of the
@@ -47,6 +58,7 @@ from .baseline import theta_per_cycle
 from .features import HEALTH_STEMS, TARGET, sort_table
 
 REF_FLIGHTS = 5
+MODE_SIGMAS = 3.0  # a change is a direction once it is this many standard deviations
 KEYS = ("unit", "cycle")
 LAST = (TARGET, "hs", "condition", "Fc")  # labels: the flight's last value
 NOT_AGGREGATED = ("t",)
@@ -120,6 +132,14 @@ def flight_table(df: pd.DataFrame, hi=None, ref_flights: int = REF_FLIGHTS,
     for j, q in enumerate(estimated):
         cols[q + "_hat_rel"] = rel[:, j]
     cols["HI_hat_rel"] = rel[:, -1]
+    delta = rel[:, :-1]
+    std = [out[q + "_hat_std"].to_numpy(float) for q in estimated if q + "_hat_std" in out]
+    s2 = np.sum(np.square(std), axis=0) if len(std) == len(estimated) else 0.0
+    norm = np.sqrt(np.sum(delta * delta, axis=1) + MODE_SIGMAS ** 2 * s2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mode = np.where(norm[:, None] > 0, delta / norm[:, None], 0.0)
+    for j, q in enumerate(estimated):
+        cols[q + "_mode"] = mode[:, j]
     out = out.drop(columns=[c for c in cols if c in out.columns])  # a flight table again
     return pd.concat([out, pd.DataFrame(cols, index=out.index)], axis=1)
 

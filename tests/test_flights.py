@@ -191,3 +191,30 @@ def test_phase_metrics_split_before_and_after_onset():
     assert "phases" in evaluate_predictions(pred)["samples"]
     assert to_samples(pred[["unit", "cycle", "RUL_pred"]].assign(RUL_pred=1.0),
                       pred.drop(columns="RUL_pred"))["RUL_pred"].eq(1.0).all()
+
+
+def test_failure_mode_is_the_direction_of_the_change_once_it_exceeds_its_noise():
+    """``<q>_mode`` (flights module docstring): the unit vector of θ̂'s change since early
+    life once the change is well above θ̂'s standard deviation, near 0 before; HPT alone
+    points along HPT, HPT with LPT between them."""
+    rows = []
+    for unit, lpt_share in ((1, 0.0), (2, 1.0)):
+        for c in range(1, 31):
+            loss = 0.0 if c <= 10 else 0.002 * (c - 10)  # onset after flight 10
+            for k in range(4):
+                rows.append({"unit": unit, "cycle": c, "t": float(k), "RUL": 30 - c,
+                             "HPT_eff_mod_hat": -loss, "LPT_eff_mod_hat": -lpt_share * loss,
+                             "LPT_flow_mod_hat": 0.0, "HPT_eff_mod_hat_std": 1e-3,
+                             "LPT_eff_mod_hat_std": 1e-3, "LPT_flow_mod_hat_std": 1e-3})
+    ft = flight_table(pd.DataFrame(rows), LinearHI())
+    cols = ["HPT_eff_mod_mode", "LPT_eff_mod_mode", "LPT_flow_mod_mode"]
+    m = ft[cols].to_numpy()
+    assert np.all(np.linalg.norm(m, axis=1) <= 1.0 + 1e-12)
+    early = ft.cycle <= 10
+    np.testing.assert_allclose(m[early.to_numpy()], 0.0, atol=1e-12)  # no change: no mode
+    last1 = ft[(ft.unit == 1)].iloc[-1][cols].to_numpy(float)
+    last2 = ft[(ft.unit == 2)].iloc[-1][cols].to_numpy(float)
+    np.testing.assert_allclose(last1, [-1.0, 0.0, 0.0], atol=0.01)  # |Δ| = 0.04 >> 3σ√3
+    np.testing.assert_allclose(last2, [-1 / np.sqrt(2), -1 / np.sqrt(2), 0.0], atol=0.01)
+    small = ft[(ft.unit == 1) & (ft.cycle == 11)][cols].to_numpy(float)[0]
+    assert abs(small[0]) < 0.5  # a change of 0.002 is within 3 σ: hardly a direction yet
