@@ -67,6 +67,8 @@ CANDIDATES = (
     ("tcn", "physics", 10),
     ("tcn", "physics", 20),
     ("tcn", "health", 20),
+    ("tcn", "physics-mode", 10),
+    ("tcn", "health-mode", 20),
     ("trend", "physics", 20),
     ("trend", "health", 20),
     ("tcn", "health_true", 20),

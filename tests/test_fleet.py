@@ -209,7 +209,7 @@ def test_cli_simulate_info_effects(tmp_path):
     (["--units", "9"], "no unit 9"),
     (["--rate", "0.3"], "rate_hz 0.3"),
     (["--preset", "ds99"], "unknown preset"),
-    (["--format", "csv"], "--format csv"),
+    (["--format", "csv"], "'csv' is not one of 'parquet', 'h5'"),
 ])
 def test_cli_simulate_bad_input(tmp_path, args, msg):
     out = tmp_path / "x"

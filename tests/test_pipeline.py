@@ -304,12 +304,12 @@ def test_refused_data_leaves_nothing_behind(runner, tmp_path):
     from engine_model.datasets import read_dataset, read_metadata, write_parquet
     from workflows.pipeline.stages import default_data
 
-    df, _ = read_dataset(default_data(), units=[4])
+    df, _ = read_dataset(default_data(), units=[3, 4])
     data = tmp_path / "kpa"
     write_parquet(df.assign(P30=df["P30"] * 6.894757), data, read_metadata(default_data()))
     out = tmp_path / "out"
     r = runner.invoke(app, ["pipeline", str(data), "--out", str(out)])
-    assert_one_line_error(r, str(data), "unit 4")
+    assert_one_line_error(r, str(data), "unit 3", "P30", "kPa")
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kpa"]
 

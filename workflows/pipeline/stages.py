@@ -158,8 +158,10 @@ def check_data_against_config(ctx: Context, data: Path) -> None:
         raise InputError(f"{source}: [data] units: unit(s) {', '.join(map(str, missing))} "
                          f"not in {data} (its units: {', '.join(map(str, present))})")
     chosen = [u for u in present if dc["units"] is None or u in dc["units"]]
-    split_units(chosen, read_metadata(data), dc, f"{source} (units of {data}: "
-                f"{', '.join(map(str, chosen))})")
+    try:
+        split_units(chosen, read_metadata(data), dc, source)
+    except InputError as e:
+        raise InputError(f"{e} ({data}: unit(s) {', '.join(map(str, chosen))})") from None
     names = set(read_columns(data)) | {f"{c}_hat" for c in UNITS} \
         | {f"{q}_hat_std" for q in THETA_NAMES}
     for spec in ctx.config["train"]["inputs"]:
