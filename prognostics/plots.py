@@ -54,7 +54,8 @@ def plot_rul(per_cycle: pd.DataFrame, title: str, path: str | os.PathLike) -> No
     ``min``, ``max`` and optionally ``lower``, ``upper``)."""
     plt = _pyplot()
     units = sorted(per_cycle["unit"].unique())
-    fig, axes = plt.subplots(1, len(units), figsize=(4.2 * len(units), 3.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(units), figsize=(max(4.6 * len(units), 8.5), 4.2),
+                             squeeze=False, layout="constrained")
     for ax, u in zip(axes[0], units, strict=True):
         g = per_cycle[per_cycle["unit"] == u]
         c = g["cycle"].to_numpy()
@@ -154,7 +155,7 @@ def plot_error_by_rul(errors: Mapping[str, list], path: str | os.PathLike) -> No
 def plot_training_curves(histories: Mapping[str, list], path: str | os.PathLike) -> None:
     """``histories``: label -> list of ``{"epoch", "train_loss", "val_loss"}``."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(9, 4.5), layout="constrained")
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (label, h) in enumerate(histories.items()):
         colour = colours[i % len(colours)]
