@@ -63,9 +63,26 @@ def test_choices_are_listed_and_refused_otherwise():
     assert "'lstm' is not one of 'fnn', 'cnn', 'dcnn', 'tcn', 'trend'" in res.stderr
 
 
-def test_completion_is_installable():
+def test_completion_is_installable_and_completes():
+    """``hyprog --install-completion`` is offered, and the completion it installs answers:
+    a command's name from its first letters, an option's choices."""
+    import os
+    import subprocess
+    import sys
+
     text = CliRunner().invoke(app, ["--help"]).stdout
     assert "--install-completion" in text and "--show-completion" in text
+
+    def complete(words: str, cword: int) -> list[str]:
+        env = {**os.environ, "COMP_WORDS": words, "COMP_CWORD": str(cword),
+               "_HYPROG_COMPLETE": "complete_bash"}
+        r = subprocess.run([sys.executable, "-c",
+                            "from cli.main import app; app(prog_name='hyprog')"],
+                           env=env, capture_output=True, text=True, check=True)
+        return r.stdout.split()
+
+    assert complete("hyprog tr", 1) == ["train"]
+    assert complete("hyprog train f --model ", 4) == ["fnn", "cnn", "dcnn", "tcn", "trend"]
 
 
 @pytest.mark.parametrize("group", ["data", "experiment", "model", "calibrate"])
