@@ -78,8 +78,9 @@ def evaluate(
                   str(e["cycle"]), f"{e['RUL']:.3g}", f"{e['RUL_pred']:.3g}",
                   f"{abs(e['delta']):.3f}", f"{hz['units'][u]:.3g}", *cells(m))
     o = s["overall"]
-    t.add_row("all", f"{o['n']:,}", f"{o['rmse']:.3f}", f"{o['score']:.4g}", "", "", "",
-              f"{last['overall']['rmse']:.3f}", f"{hz['mean']:.3g}", *cells(o))
+    if len(s["units"]) > 1:  # with one unit the row would repeat it
+        t.add_row("all", f"{o['n']:,}", f"{o['rmse']:.3f}", f"{o['score']:.4g}", "", "", "",
+                  f"{last['overall']['rmse']:.3f}", f"{hz['mean']:.3g}", *cells(o))
     al = metrics["alpha_lambda"]
     life = Table("λ (fraction of life)", f"within ±{al['alpha']:.0%}", "relative accuracy",
                  title="accuracy at t_P + λ (t_EOL - t_P)")
