@@ -112,17 +112,22 @@ def caught_warnings() -> Iterator[list[str]]:
     in the ``--json`` report (other categories, e.g. a dependency's deprecation, are left to
     Python)."""
     messages: list[str] = []
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", UserWarning)
-        try:
-            yield messages
-        finally:
-            for w in caught:
-                m = " ".join(str(w.message).split())
-                if issubclass(w.category, UserWarning) and m not in messages:
-                    messages.append(m)
-                elif not issubclass(w.category, UserWarning):
-                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    others: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UserWarning)
+            try:
+                yield messages
+            finally:
+                for w in caught:
+                    m = " ".join(str(w.message).split())
+                    if not issubclass(w.category, UserWarning):
+                        others.append(w)
+                    elif m not in messages:
+                        messages.append(m)
+    finally:  # outside the recording block: Python's own filters and display again
+        for w in others:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def finish(report: dict, warned: list[str], as_json: bool) -> bool:

@@ -92,3 +92,21 @@ def test_cli_choices_are_the_librarys():
     assert choices(root.commands["calibrate"].commands["run"], "method") == tuple(ESTIMATORS)
     assert set(choices(root.commands["discover"], "method")) == {"coarse", *ESTIMATORS}
     assert choices(root.commands["train"], "model") == MODEL_KINDS
+
+
+def test_caught_warnings_keeps_the_librarys_and_passes_the_others_on():
+    """``cli.common.caught_warnings``: the library's UserWarnings once each, in order, for the
+    report; any other category (a dependency's RuntimeWarning) handed back to Python."""
+    import warnings
+
+    from cli.common import caught_warnings
+
+    with warnings.catch_warnings(record=True) as outer:
+        warnings.simplefilter("always")
+        with caught_warnings() as said:
+            warnings.warn("first", UserWarning)
+            warnings.warn("overflow", RuntimeWarning)
+            warnings.warn("first", UserWarning)
+            warnings.warn("second", UserWarning)
+    assert said == ["first", "second"]
+    assert [str(w.message) for w in outer] == ["overflow"]
