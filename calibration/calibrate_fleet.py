@@ -550,7 +550,8 @@ def calibrate(data, method: str = "ukf", setup: CalibrationSetup | None = None,
     run = calibrate_fleet(frame, method, setup, jobs=jobs, effects=effects, progress=progress)
     meta = dict(data.metadata) if isinstance(data, datasets.Dataset) else dict(run.metadata)
     meta["calibration"] = run.metadata["calibration"]
-    source = data.source if isinstance(data, datasets.Dataset) else "table"
+    source = data.source if isinstance(data, datasets.Dataset) else \
+        "table" if isinstance(data, pd.DataFrame) else str(data)
     return datasets.Dataset(features_of(run), meta, source)
 
 
