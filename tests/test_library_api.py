@@ -104,9 +104,9 @@ def test_caught_warnings_keeps_the_librarys_and_passes_the_others_on():
     with warnings.catch_warnings(record=True) as outer:
         warnings.simplefilter("always")
         with caught_warnings() as said:
-            warnings.warn("first", UserWarning)
-            warnings.warn("overflow", RuntimeWarning)
-            warnings.warn("first", UserWarning)
-            warnings.warn("second", UserWarning)
+            warnings.warn("first", UserWarning, stacklevel=1)
+            warnings.warn("overflow", RuntimeWarning, stacklevel=1)
+            warnings.warn("first", UserWarning, stacklevel=1)
+            warnings.warn("second", UserWarning, stacklevel=1)
     assert said == ["first", "second"]
     assert [str(w.message) for w in outer] == ["overflow"]
