@@ -14,7 +14,7 @@ One job per module:
 - :mod:`.ensemble`     a trained model (one network per seed), :func:`~.ensemble.fit`, predictions
 - :mod:`.estimator`    :class:`~.estimator.RulEstimator`: ``fit`` / ``predict`` / ``evaluate`` /
   ``save`` / ``load``, the library's entry point
-- :mod:`.results`      :class:`~.results.Evaluation`: metrics as a typed object,
+- :mod:`.evaluation`   :class:`~.evaluation.Evaluation`: metrics as a typed object,
   ``to_frame()`` / ``to_json()``
 - :mod:`.conformal`    split-conformal prediction intervals
 - :mod:`.checkpoint`   safe save / load (safetensors + JSON, SHA-256 checked)
@@ -39,7 +39,7 @@ from importlib import import_module
 # stays free of torch, ``from prognostics import RulEstimator`` works
 _LAZY = {
     "RulEstimator": "estimator",
-    "Evaluation": "results",
+    "Evaluation": "evaluation",
     "RulModel": "ensemble",
     "fit": "ensemble",
     "TrainConfig": "train_config",

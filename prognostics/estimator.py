@@ -5,7 +5,7 @@ The options are those of :class:`~.train_config.TrainConfig` (the same names as 
 ``hyprog train`` flags and the pipeline's ``[train]`` table), given as keywords; ``fit``
 trains one network per seed (:func:`.ensemble.fit`), ``predict`` returns the per-sample
 prediction frame (:meth:`.ensemble.RulModel.predict`), ``evaluate`` an
-:class:`~.results.Evaluation` on test units, and ``save`` / ``load`` use the safe checkpoint
+:class:`~.evaluation.Evaluation` on test units, and ``save`` / ``load`` use the safe checkpoint
 format of :mod:`.checkpoint`::
 
     from calibration import calibrate
@@ -38,7 +38,7 @@ from engine_model.validation import InputError
 
 from .checkpoint import load_model, save_model
 from .ensemble import RulModel, fit
-from .results import Evaluation
+from .evaluation import Evaluation
 from .train_config import TrainConfig
 
 
