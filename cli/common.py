@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import sys
-import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Annotated
@@ -107,27 +106,12 @@ def error_line(message: str) -> str:
 
 @contextmanager
 def caught_warnings() -> Iterator[list[str]]:
-    """The library's warnings (``UserWarning`` and its subclasses) raised inside the block,
-    collected as one-line messages, each once, in order, for :func:`finish` to print or put
-    in the ``--json`` report (other categories, e.g. a dependency's deprecation, are left to
-    Python)."""
-    messages: list[str] = []
-    others: list = []
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", UserWarning)
-            try:
-                yield messages
-            finally:
-                for w in caught:
-                    m = " ".join(str(w.message).split())
-                    if not issubclass(w.category, UserWarning):
-                        others.append(w)
-                    elif m not in messages:
-                        messages.append(m)
-    finally:  # outside the recording block: Python's own filters and display again
-        for w in others:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    """The library's warnings raised inside the block, for :func:`finish` to print or put in
+    the ``--json`` report (:func:`engine_model.validation.collected_warnings`)."""
+    from engine_model.validation import collected_warnings
+
+    with collected_warnings() as messages:
+        yield messages
 
 
 def finish(report: dict, warned: list[str], as_json: bool) -> bool:

@@ -1,5 +1,9 @@
-"""Input checks with messages a user can act on: they name the row and the column."""
+"""Input checks with messages a user can act on: they name the row and the column; and the
+library's warnings, collected for a report (:func:`collected_warnings`)."""
 
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -9,6 +13,31 @@ from .channels import THETA_NAMES, W_NAMES
 
 class InputError(ValueError):
     """Bad input to the engine model (NaN, out of envelope, wrong columns)."""
+
+
+@contextmanager
+def collected_warnings() -> Iterator[list[str]]:
+    """The library's warnings (``UserWarning`` and its subclasses) raised inside the block,
+    as one-line messages, each once, in order (filled when the block ends), for a command or
+    a stage to report; other categories (a dependency's deprecation, numpy's overflow) are
+    handed back to Python's own filters after the block."""
+    messages: list[str] = []
+    others: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UserWarning)
+            try:
+                yield messages
+            finally:
+                for w in caught:
+                    m = " ".join(str(w.message).split())
+                    if not issubclass(w.category, UserWarning):
+                        others.append(w)
+                    elif m not in messages:
+                        messages.append(m)
+    finally:  # outside the recording block: re-emitted there, they would be recorded again
+        for w in others:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 @dataclass(frozen=True)

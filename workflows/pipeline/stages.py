@@ -29,14 +29,13 @@ from __future__ import annotations
 
 import json
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from data_samples import TINY_FLEET, sample_path
 from engine_model.datasets.jsonable import jsonable
-from engine_model.validation import InputError
+from engine_model.validation import InputError, collected_warnings
 
 from .config import calibration_setup, train_config
 
@@ -143,12 +142,13 @@ def split_units(present, metadata: dict, data_cfg: dict, source: str) -> dict:
 def check_data_against_config(ctx: Context, data: Path) -> None:
     """What the configuration asks of the data, checked before any stage runs, naming the
     configuration file and key: the units of ``[data]`` are in the data, the split leaves a
-    development and a test unit, and every ``[train] inputs`` term is an input set, a group
-    or a column the feature table will have (a data column, or a channel or parameter with
-    ``_hat`` / ``_hat_std``, which calibrate adds)."""
+    development and a test unit, and every ``[train] inputs`` resolves
+    (:func:`prognostics.features.resolve_inputs`) against the columns the feature table will
+    have: the data's, a channel or parameter with ``_hat`` / ``_hat_std`` (calibrate adds
+    them) and the flight table's health coordinates (the flight models add them)."""
     from engine_model.channels import THETA_NAMES, UNITS
     from engine_model.datasets import read_columns, read_dataset, read_metadata
-    from prognostics.features import GROUPS, INPUT_SETS
+    from prognostics.features import HEALTH_STEMS, resolve_inputs
 
     source = ctx.config_source
     dc = ctx.config["data"]
@@ -162,18 +162,16 @@ def check_data_against_config(ctx: Context, data: Path) -> None:
         split_units(chosen, read_metadata(data), dc, source)
     except InputError as e:
         raise InputError(f"{e} ({data}: unit(s) {', '.join(map(str, chosen))})") from None
-    names = set(read_columns(data)) | {f"{c}_hat" for c in UNITS} \
-        | {f"{q}_hat_std" for q in THETA_NAMES}
+    hats = [f"{c}_hat" for c in UNITS] + [f"{q}_hat_std" for q in THETA_NAMES]
+    flights = [f"{h}{s}" for h in HEALTH_STEMS for s in ("", "_hat")] + ["HI_hat_rel"] + \
+        [f"{q}{s}" for q in THETA_NAMES for s in ("_hat_rel", "_mode")]
+    columns = [*read_columns(data), *hats, *flights]  # the feature (and flight) table's
     for spec in ctx.config["train"]["inputs"]:
-        for term in (t.strip() for t in spec.split("+")):
-            if term in INPUT_SETS or term in GROUPS:
-                continue
-            unknown = [c.strip() for c in term.split(",") if c.strip() not in names]
-            if unknown or not term:
-                what = ", ".join(unknown) or "an empty term"
-                raise InputError(f"{source}: [train] inputs {spec!r}: {what} is neither an "
-                                 f"input set ({', '.join(INPUT_SETS)}), a group "
-                                 f"({', '.join(GROUPS)}) nor a column of the feature table")
+        try:
+            resolve_inputs(spec, columns, "the feature table")
+        except InputError as e:
+            raise InputError(f"{source}: [train] inputs {spec!r} is not an input set, a group "
+                             f"or columns the feature table will have ({e})") from None
 
 
 def _read(path, units=None):
@@ -354,13 +352,10 @@ def evaluate(ctx: Context, folder: Path, feats: dict, trained: dict) -> dict:
     out = {}
     for inputs, t in trained.items():
         model = load_model(ctx.path(t["model"]))
-        with warnings.catch_warnings(record=True) as caught:  # kept with the stage's result
-            warnings.simplefilter("always", UserWarning)
+        with collected_warnings() as said:  # kept with the stage's result
             metrics, pred = model.evaluate(df, test, ctx.config["train"]["device"],
                                            source=str(table))
         path = folder / f"{inputs}.predictions.parquet"
         write_table(path, pred)
-        said = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught
-                                  if issubclass(w.category, UserWarning)))
         out[inputs] = {"metrics": metrics, "predictions": ctx.rel(path), "warnings": said}
     return _round_trip(out)
