@@ -29,7 +29,7 @@ def adapt(
     channels: Annotated[str | None, typer.Option(
         "--channels", help="Channels to fit (default: T24,T30,T50,P15,P30,Nf,Nc).")] = None,
     candidates: Annotated[str | None, typer.Option(
-        "--candidates", help="Candidates (default all): design_scaling, map_scaling, "
+        "--candidates", help="Candidates (default all): design_scaling, map_scaling, map_slope, "
         "customer_bleed, hp_offtake, reynolds, inlet_loss, nozzle_area, sensor_gain.")] = None,
     early_cycles: Annotated[int, typer.Option(
         "--early-cycles", help="Cycles of early life used (cycle <= this).", min=1)] = 20,

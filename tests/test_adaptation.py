@@ -134,6 +134,26 @@ def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_no
     assert all(np.isfinite(r["std"]) and r["std"] > 0 for r in rec["parameters"])
 
 
+def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not_change():
+    """C-MAPSS holds the corrected fan speed at one value in five of its six conditions, so a
+    shape in corrected speed cannot tell them apart; the fan's working point still moves
+    along its speed line as the bypass nozzle chokes. A fleet whose fan has flatter speed
+    lines (``map_slope`` -0.4): the loop names the fan's slope, recovers it, and the held-out
+    error returns to the noise."""
+    names = ("design_scaling", "map_scaling", "map_slope")
+    model = CandidateModel(build_groups(CHANNELS, names))
+    fleet = simulated_fleet(["map_slope:component=fan,slope=-0.4"], units=8, cycles=12,
+                            seed=11)
+    res = adapt(fleet, CHANNELS, names, model=model)
+    sel = res.selection
+    added = [c for c in sel.chosen if not c.startswith("design_scaling")]
+    assert added and added[0] == "map_slope_fan", sel.chosen
+    assert sel.after.chi2_out < 1.5 < sel.before.chi2_out
+    p = {(r["candidate"], r["parameter"]): r for r in res.record()["parameters"]}
+    slope = p[("map_slope_fan", "slope")]
+    assert abs(slope["value"] + 0.4) < max(3 * slope["std"], 0.05), slope
+
+
 def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_model):
     res = adapt(simulated_fleet(seed=7), CHANNELS, CANDIDATES, model=candidate_model)
     assert all(c.startswith("design_scaling") for c in res.selection.chosen)

@@ -210,6 +210,28 @@ def test_dynamics_on_a_flight_lags_spools_and_temperatures():
     assert out["Nc"].iloc[-1] == pytest.approx(9500, abs=1e-6)
 
 
+def test_a_flatter_fan_speed_line_holds_the_pressure_ratio_at_cruise(model):
+    """At SLS full power the fan runs at its design flow coefficient and nothing moves; at
+    cruise its working point lies nearer choke (choked bypass nozzle), where a flatter speed
+    line keeps more of the pressure ratio. Only the three compressors have speed lines. The
+    surge line is where the stall flow coefficient is, away from the design's: a flatter line
+    rises less to it, so the fan's stall margin shrinks even at SLS."""
+    m = EngineModel(design=model.design,
+                    effects=[parse_effect_spec("map_slope:component=fan")], compiled=False)
+    w = w_rows([(0.0, 0.0, 100.0), (35000.0, 0.8, 100.0)])
+    y0 = m.evaluate(w, p=np.zeros(1))
+    y1 = m.evaluate(w, p=np.array([-0.3]))
+    rel = ((y1[list(OUTPUT_NAMES)] - y0[list(OUTPUT_NAMES)]) / y0[list(OUTPUT_NAMES)].abs())
+    assert rel.iloc[0][list(XS_NAMES)].abs().max() < 1e-9
+    assert y1["SmFan"].iloc[0] < y0["SmFan"].iloc[0] - 1.0
+    fpr0, fpr1 = (y["P15"].iloc[1] / y["P2"].iloc[1] for y in (y0, y1))
+    assert fpr1 > fpr0 * 1.002
+    assert abs(rel.iloc[1]["Nf"]) < 1e-9  # the controller holds the corrected fan speed
+    for spec in ("map_slope", "map_slope:component=HPT"):
+        with pytest.raises(EffectSpecError, match="component"):
+            parse_effect_spec(spec)
+
+
 def test_map_scaling_is_a_shape_in_corrected_speed(model):
     """At the design corrected speed (SLS, full power) the map is right and nothing moves; at
     part power a positive eff_1 lowers the HPC's efficiency: T48 rises. A component is

@@ -11,6 +11,11 @@ design_scaling_<c>     the component's efficiency and flow level (design-point s
 map_scaling_<c>        their change with the component's corrected speed, linear and
                        quadratic in ``n_corr - 1`` (condition-dependent scaling: Li &
                        Pilidis 2010; multi-point adaptation: Tsoutsanis et al. 2015)
+map_slope_<k>          the slope of a compressor's speed lines (``k``: fan, LPC, HPC): the
+                       pressure ratio's change along a speed line, which moves between
+                       conditions at the same corrected speed (the bypass nozzle chokes
+                       from take-off to cruise: C-MAPSS holds the corrected fan speed
+                       at 2388 rpm in five of its six conditions)
 customer_bleed         air taken off the HPC exit, and its change with altitude
 hp_offtake             shaft power taken off the HP spool
 reynolds               the loss of efficiency (and flow) at low Reynolds number index
@@ -41,7 +46,10 @@ from engine_model.validation import InputError
 #: The levels: always fitted (:mod:`.selection`), not selected.
 LEVEL_GROUP = "design_scaling"
 #: The steady candidates, in the order they are carried.
-STEADY_GROUPS = ("design_scaling", "map_scaling", *STEADY_DEFAULT)
+STEADY_GROUPS = ("design_scaling", "map_scaling", "map_slope", *STEADY_DEFAULT)
+#: The groups with one instance per component (option ``component``) and their components.
+PER_COMPONENT = {"design_scaling": COMPONENT_MODS, "map_scaling": COMPONENT_MODS,
+                 "map_slope": ("fan", "LPC", "HPC")}
 SENSOR_GROUP = "sensor_gain"
 
 
@@ -75,8 +83,8 @@ def build_groups(channels, names=None) -> list[Candidate]:
     for n in STEADY_GROUPS:
         if n not in names:
             continue
-        if n in ("design_scaling", "map_scaling"):
-            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in COMPONENT_MODS]
+        if n in PER_COMPONENT:
+            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in PER_COMPONENT[n]]
         else:
             out.append(_make(parse_effect_spec(n)))
     if SENSOR_GROUP in names:

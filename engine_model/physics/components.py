@@ -31,7 +31,7 @@ def duct_loss(P_in, Wc, Wc_des, dp_des):
     return P_in * (1.0 - dp_des * (Wc / Wc_des) ** 2)
 
 
-def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
+def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0, slope_mod=0.0):
     """Compressor on its map: corrected flow, exit state, specific work and stall margin.
 
     The map (:class:`maps.CompressorMap`) gives the isentropic head, hence the pressure
@@ -41,19 +41,21 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0):
     below PR = 1). The stall margin is taken at constant corrected speed (SAE
     ARP1420; Walsh & Fletcher ch. 5), ``SM = 100 (PR_surge(N) / PR - 1)``, against the surge
     line of the compressor's own flow capacity (:meth:`maps.CompressorMap.beta_surge`).
+    ``slope_mod`` scales the slope of the map's work line, hence of its speed lines
+    (:meth:`maps.CompressorMap.work`; 0 for the map as designed).
     """
     wc = cmap.flow(n, beta, flow_mod)
     W = physical_flow(wc, T_in, P_in)
-    head = cmap.head(n, beta) * T_in  # isentropic specific work [J/kg]
+    head = cmap.head(n, beta, slope_mod) * T_in  # isentropic specific work [J/kg]
     eta = cmap.efficiency(n, beta, eff_mod)
     h_in = gas.h(T_in, far)
     cp_in = gas.cp(T_in, far)
     T_is = gas.t_from_h(h_in + head, far, T_in + head / cp_in)
     pr = gas.pressure_ratio_isentropic(T_in, T_is, far)
-    dh = cmap.work(n, beta) * T_in / (1.0 + eff_mod)  # = head / eta
+    dh = cmap.work(n, beta, slope_mod) * T_in / (1.0 + eff_mod)  # = head / eta
     T_out = gas.t_from_h(h_in + dh, far, T_in + dh / cp_in)
     # surge line at the same corrected speed
-    head_s = cmap.head(n, cmap.beta_surge(n, flow_mod)) * T_in
+    head_s = cmap.head(n, cmap.beta_surge(n, flow_mod), slope_mod) * T_in
     T_is_s = gas.t_from_h(h_in + head_s, far, T_in + head_s / cp_in)
     pr_s = gas.pressure_ratio_isentropic(T_in, T_is_s, far)
     return {

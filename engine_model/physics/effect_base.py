@@ -41,6 +41,9 @@ hook (value, unit)                     context keywords
                                        Fan: T2 and the free-stream Pt0
                                        (the fan's hooks precede the intake loss); LPC: 21;
                                        HPC: 25; HPT: 41 / P40; LPT: 49 / P45.
+``fan_slope_mod``, ``LPC_slope_mod``,  the same as the component's ``<theta name>`` hooks;
+``HPC_slope_mod`` (fraction, default   scales the slope of the map's work line
+0)                                     (:meth:`maps.CompressorMap.work`)
 ``P2`` (Pa, fan face after the         ``Pt0`` [Pa] (free-stream total pressure)
 intake loss)
 ``A18``, ``A8`` (m^2, nozzle throats)  -

@@ -45,6 +45,20 @@ map_scaling        map adaptation of one component (option ``component``: fan, L
                    polynomial map tuning, Tsoutsanis et al., Applied Energy 135, 2014). The
                    constant term is left out: at the design speed the scaler is theta itself
                    (the health parameter), so the effect is the shape, not the level.
+map_slope          the slope of one compressor's speed lines (option ``component``: fan,
+                   LPC, HPC): the slope ``kappa`` of its map's work line, ``psi / psi_des =
+                   1 - kappa (phi - 1)`` along a speed line (:mod:`engine_model.physics.
+                   maps`), scaled by ``1 + slope``. The isentropic head (hence the pressure
+                   ratio) and the work change together, the efficiency does not. A flatter
+                   line (``slope < 0``) holds the pressure ratio as the working point moves
+                   along the speed line, e.g. when the bypass nozzle chokes between take-off
+                   and cruise at the same corrected fan speed. The generic map's slope is a
+                   class-typical value (``DesignSpec.fan_map``); the real blading's, set by
+                   its exit metal angles and stage matching (Cumpsty, *Compressor
+                   Aerodynamics*, ch. 4; Dixon & Hall, ch. 5), is what the adaptation to a
+                   real engine estimates (the speed-line shape of map scaling: Kurzke,
+                   ASME GT2011). At the design flow coefficient (SLS full power) nothing
+                   moves.
 design_scaling     the constant part of a component's map adaptation (option ``component``):
                    efficiency and flow scalers added to its health modifiers. On one engine
                    it is indistinguishable from theta; over a fleet it is the level every
@@ -78,6 +92,11 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
   and nothing moves; at cruise (TRA 80, dn < 0) a positive ``eff_1`` lowers the component's
   efficiency, so the burner runs hotter (``T48``, ``T50``, ``Wf`` up) for an HPC, HPT or
   LPT (the instance's ``moves`` and ``signature`` are per component).
+- map_slope: at SLS full power the compressor runs at its design flow coefficient and nothing
+  moves; at cruise the fan runs nearer choke (choked bypass nozzle, larger flow coefficient),
+  where a flatter line keeps more pressure ratio (``P15``, ``P30`` up) and the core runs
+  hotter for the larger work (``Wf``, ``T50`` up); the booster runs at a lower flow
+  coefficient, where a flatter line gives less pressure rise (``P24``, ``T24`` down).
 - design_scaling: a lower efficiency or flow of a component (both at -1 %) at both points:
   for a compressor or turbine the burner must run hotter (``Wf``, ``T50`` up); a less
   efficient fan raises less pressure at the held fan speed (``P15``, ``P30`` down); the
@@ -256,6 +275,49 @@ class MapScaling(Effect):
         if hook == f"{self.component}_flow_mod":
             dn = ctx["n_corr"] - 1.0
             return value + p["flow_1"] * dn + p["flow_2"] * dn * dn
+        return value
+
+
+@register
+class MapSlope(Effect):
+    """The slope of a compressor's speed lines (option ``component``)."""
+
+    name = "map_slope"
+    options = ("component",)
+    description = ("Slope of one compressor's speed lines (option component: fan, LPC, HPC): "
+                   "the work line's slope kappa scaled by 1 + slope.")
+    params = (
+        Param("slope", "-", 0.0, "fractional change of the work line's slope kappa", -0.3,
+              (-0.5, 0.5), valid=(-0.8, 1.0)),
+    )
+    moves = ("<component>",)  # per instance: MOVES[component]
+    signature = {"SLS": {}, "CRZ": {}}
+    # slope at its typical size (-0.3): the measured channels that move by more than 0.1 % at
+    # CRZ (tests/test_effects.py checks them) and the signs there; at SLS full power every
+    # compressor runs at its design flow coefficient, where the slope changes nothing
+    # (the HPC's stage-averaged flow coefficient stays near 1 at CRZ: it moves nothing there;
+    # its slope shows further from the design point, at low power)
+    MOVES = {
+        "fan": ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P15", "P21", "P24", "Ps30",
+                "P30", "P40", "P50"),
+        "LPC": ("Nc", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50"),
+        "HPC": (),
+    }
+    SIGNS = {"fan": {"Wf": +1, "P15": +1, "P30": +1, "T50": +1},
+             "LPC": {"T24": -1, "P24": -1, "P30": -1},
+             "HPC": {}}
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        comp = _required_option(self, "component", tuple(self.MOVES), "fan,slope=-0.3")
+        self.component = comp
+        self.name = f"map_slope_{comp}"
+        self.moves = self.MOVES[comp]
+        self.signature = {"SLS": {}, "CRZ": dict(self.SIGNS[comp])}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == f"{self.component}_slope_mod":
+            return value + p["slope"]
         return value
 
 

@@ -175,9 +175,12 @@ class CompressorMap:
         ``Wc / (Wc_des n^k_work) = phi_hat n^(k_ch - k_work)``."""
         return self.phi_hat(beta) * n ** (self.k_ch - self.k_work)
 
-    def work(self, n, beta):
-        """Euler specific work of the map / inlet total temperature [J/(kg K)]."""
-        return self.work_des * n**2 * (1.0 - self.kappa * (self.phi_work(n, beta) - 1.0))
+    def work(self, n, beta, slope_mod=0.0):
+        """Euler specific work of the map / inlet total temperature [J/(kg K)]; ``slope_mod``
+        scales the work line's slope ``kappa`` by ``1 + slope_mod`` (the speed lines' slope:
+        :class:`~engine_model.physics.effect_library.MapSlope`)."""
+        kappa = self.kappa * (1.0 + slope_mod)
+        return self.work_des * n**2 * (1.0 - kappa * (self.phi_work(n, beta) - 1.0))
 
     @property
     def beta_deep_choke(self) -> float:
@@ -206,9 +209,9 @@ class CompressorMap:
     def efficiency(self, n, beta, eff_mod=0.0):
         return self.eta_map(n, beta) * (1.0 + eff_mod)
 
-    def head(self, n, beta):
+    def head(self, n, beta, slope_mod=0.0):
         """Isentropic head / inlet total temperature [J/(kg K)] (sets the pressure ratio)."""
-        return self.eta_map(n, beta) * self.work(n, beta)
+        return self.eta_map(n, beta) * self.work(n, beta, slope_mod)
 
     def beta_surge(self, n=1.0, flow_mod=0.0):
         """Map line of the surge line at speed ``n``: where the actual flow coefficient of
