@@ -250,7 +250,7 @@ def main(argv=None) -> int:
                             label = f"{name} --params {args.params}"
                         if args.model_effects is not None and name != "data-driven":
                             body["model_effects"] = file_sha(args.model_effects)
-                            label = f"{label}, adapted"
+                            label = f"{label}, adapted {body['model_effects'][:8]}"
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})
