@@ -28,7 +28,7 @@ TINY = Path(__file__).resolve().parents[1] / "data_samples" / "tiny"
 CHANNELS = ("T24", "T30", "T50", "P15", "P30", "Nf", "Nc")
 #: noise std per channel (about C-MAPSS FD002's within-engine early-life levels, P15 coarser)
 NOISE = {"T24": 0.3, "T30": 4.0, "T50": 4.0, "P15": 0.02, "P30": 0.4, "Nf": 0.03, "Nc": 4.0}
-CANDIDATES = ("design_scaling", "map_scaling", "map_slope", "nozzle_area")
+CANDIDATES = ("design_scaling", "map_scaling", "nozzle_area")
 #: HPC efficiency 2 % lower at the part-power condition (corrected speed about 3.4 % below
 #: design): map_scaling eff_1 = 0.6 per unit of (n_corr - 1)
 SHAPE = "map_scaling:component=HPC,eff_1=0.6"
@@ -39,7 +39,7 @@ def simulated_fleet(truth_effects=(), units=12, cycles=18, seed=0) -> pd.DataFra
     engine (std 0.4 %), readings of ``CHANNELS`` with Gaussian noise ``NOISE``."""
     rng = np.random.default_rng(seed)
     w6 = reference_w(load_reference(default_reference_path())).to_numpy(float)
-    truth = EngineModel(effects=[parse_effect_spec(s) for s in truth_effects])
+    truth = EngineModel(effects=[parse_effect_spec(s) for s in truth_effects], compiled=False)
     rows = []
     for u in range(1, units + 1):
         theta = rng.normal(0.0, 0.004, len(THETA_NAMES))
@@ -134,16 +134,19 @@ def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_no
     assert all(np.isfinite(r["std"]) and r["std"] > 0 for r in rec["parameters"])
 
 
-def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not_change(
-        candidate_model):
+def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not_change():
     """C-MAPSS holds the corrected fan speed at one value in five of its six conditions, so a
     shape in corrected speed cannot tell them apart; the fan's working point still moves
     along its speed line as the bypass nozzle chokes. A fleet whose fan has flatter speed
     lines (``map_slope`` -0.4): the loop names the fan's slope, recovers it, and the held-out
-    error returns to the noise."""
+    error returns to the noise. (The candidates are the levels, the slopes and the fan's
+    nozzle, whose area also moves the fan's working point; the shapes in corrected speed
+    are left out to keep the test's cost down: they cannot follow the five conditions at
+    one corrected fan speed in any case.)"""
+    names = ("design_scaling", "map_slope", "nozzle_area")
     fleet = simulated_fleet(["map_slope:component=fan,slope=-0.4"], units=8, cycles=12,
                             seed=11)
-    res = adapt(fleet, CHANNELS, CANDIDATES, model=candidate_model)
+    res = adapt(fleet, CHANNELS, names, model=CandidateModel(build_groups(CHANNELS, names)))
     sel = res.selection
     added = [c for c in sel.chosen if not c.startswith("design_scaling")]
     assert added and added[0] == "map_slope_fan", sel.chosen
