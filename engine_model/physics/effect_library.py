@@ -224,10 +224,33 @@ class NozzleArea(Effect):
         return value
 
 
-@register
-class MapScaling(Effect):
-    name = "map_scaling"
+class ComponentEffect(Effect):
+    """Base of the effects on one component's map (option ``component``): an instance is
+    named ``<effect>_<component>`` and moves the channels ``MOVES[component]``, with the
+    signs ``SIGNS[component]`` at the points of ``SIGNED_AT`` (the others: none declared);
+    the allowed components are ``MOVES``'s keys. Subclasses set ``name``, ``description``,
+    ``params``, ``MOVES``, ``SIGNS``, ``SIGNED_AT``, ``EXAMPLE`` (a component and parameters
+    for the error message's example) and ``apply``."""
+
     options = ("component",)
+    MOVES: dict = {}
+    SIGNS: dict = {}
+    SIGNED_AT: tuple = ("CRZ",)
+    EXAMPLE = ""
+
+    def __init__(self, **values):
+        super().__init__(**values)
+        comp = _required_option(self, "component", tuple(self.MOVES), self.EXAMPLE)
+        self.component = comp
+        self.name = f"{self.registry_name}_{comp}"
+        self.moves = self.MOVES[comp]
+        self.signature = {point: dict(self.SIGNS[comp]) if point in self.SIGNED_AT else {}
+                          for point in ("SLS", "CRZ")}
+
+
+@register
+class MapScaling(ComponentEffect):
+    name = "map_scaling"
     description = ("Map adaptation of one component (option component): efficiency and flow "
                    "scalers that vary with its corrected speed, d = c1 (n_corr - 1) + "
                    "c2 (n_corr - 1)^2.")
@@ -241,8 +264,6 @@ class MapScaling(Effect):
         Param("flow_2", "-", 0.0, "flow scaler per unit of (n_corr - 1)^2", 0.2, (-1.0, 1.0),
               valid=(-5.0, 5.0)),
     )
-    moves = ("<component>",)  # per instance: MOVES[component]
-    signature = {"SLS": {}, "CRZ": {}}
     # every parameter at its typical size: the measured channels that move by more than
     # 0.1 % at CRZ (n_corr below 1; tests/test_effects.py checks them) and the signs at CRZ.
     # The LPT runs at nearly its design corrected speed at CRZ (T49 falls with T2), so it
@@ -260,13 +281,7 @@ class MapScaling(Effect):
              "HPT": {"Wf": +1, "T48": +1, "T50": +1},
              "LPT": {}}
 
-    def __init__(self, **values):
-        super().__init__(**values)
-        comp = _component_option(self, "eff_1=0.05")
-        self.component = comp
-        self.name = f"map_scaling_{comp}"
-        self.moves = self.MOVES[comp]
-        self.signature = {"SLS": {}, "CRZ": dict(self.SIGNS[comp])}
+    EXAMPLE = "HPC,eff_1=0.05"
 
     def apply(self, hook, value, p, ctx):
         if hook == f"{self.component}_eff_mod":
@@ -279,19 +294,16 @@ class MapScaling(Effect):
 
 
 @register
-class MapSlope(Effect):
+class MapSlope(ComponentEffect):
     """The slope of a compressor's speed lines (option ``component``)."""
 
     name = "map_slope"
-    options = ("component",)
     description = ("Slope of one compressor's speed lines (option component: fan, LPC, HPC): "
                    "the work line's slope kappa scaled by 1 + slope.")
     params = (
         Param("slope", "-", 0.0, "fractional change of the work line's slope kappa", -0.3,
               (-0.5, 0.5), valid=(-0.8, 1.0)),
     )
-    moves = ("<component>",)  # per instance: MOVES[component]
-    signature = {"SLS": {}, "CRZ": {}}
     # slope at its typical size (-0.3): the measured channels that move by more than 0.1 % at
     # CRZ (tests/test_effects.py checks them) and the signs there; at SLS full power every
     # compressor runs at its design flow coefficient, where the slope changes nothing
@@ -307,13 +319,7 @@ class MapSlope(Effect):
              "LPC": {"T24": -1, "P24": -1, "P30": -1},
              "HPC": {}}
 
-    def __init__(self, **values):
-        super().__init__(**values)
-        comp = _required_option(self, "component", tuple(self.MOVES), "fan,slope=-0.3")
-        self.component = comp
-        self.name = f"map_slope_{comp}"
-        self.moves = self.MOVES[comp]
-        self.signature = {"SLS": {}, "CRZ": dict(self.SIGNS[comp])}
+    EXAMPLE = "fan,slope=-0.3"
 
     def apply(self, hook, value, p, ctx):
         if hook == f"{self.component}_slope_mod":
@@ -322,11 +328,10 @@ class MapSlope(Effect):
 
 
 @register
-class DesignScaling(Effect):
+class DesignScaling(ComponentEffect):
     """The constant part of a component's map adaptation (option ``component``)."""
 
     name = "design_scaling"
-    options = ("component",)
     description = ("Design-point map scaling of one component (option component): constant "
                    "efficiency and flow scalers, the level that a fleet shares.")
     params = (
@@ -335,8 +340,6 @@ class DesignScaling(Effect):
         Param("flow", "-", 0.0, "flow scaler (added to the flow modifier)", -0.01,
               (-0.03, 0.03), valid=(-0.15, 0.05)),
     )
-    moves = ("<component>",)  # per instance: MOVES[component]
-    signature = {"SLS": {}, "CRZ": {}}
     # both scalers at their typical size (-1 %): the measured channels that move by more than
     # 0.1 % at SLS or CRZ (tests/test_effects.py checks them) and the signs at both points
     MOVES = {
@@ -353,14 +356,8 @@ class DesignScaling(Effect):
              "HPT": {"Wf": +1, "T50": +1, "P30": +1, "Nc": -1},
              "LPT": {"Wf": +1, "T50": +1, "P30": +1, "Nc": -1}}
 
-    def __init__(self, **values):
-        super().__init__(**values)
-        comp = _component_option(self, "eff=-0.01")
-        self.component = comp
-        self.name = f"design_scaling_{comp}"
-        self.moves = self.MOVES[comp]
-        signs = dict(self.SIGNS[comp])
-        self.signature = {"SLS": signs, "CRZ": signs}
+    SIGNED_AT = ("SLS", "CRZ")
+    EXAMPLE = "HPC,eff=-0.01"
 
     def apply(self, hook, value, p, ctx):
         if hook == f"{self.component}_eff_mod":
@@ -382,11 +379,6 @@ def _required_option(effect: Effect, key: str, allowed, example: str) -> str:
         raise EffectSpecError(f"effect {name}: unknown {key} {value!r}; one of "
                               f"{', '.join(allowed)}")
     return value
-
-
-def _component_option(effect: Effect, example: str) -> str:
-    """The effect's ``component`` option, checked (``example``: parameters for the message)."""
-    return _required_option(effect, "component", COMPONENT_MODS, f"HPC,{example}")
 
 
 def _channel_option(effect: Effect) -> str:
