@@ -102,11 +102,13 @@ def error_tables(rec: dict) -> str:
                      f"{p['std']:.2g} | [{p['valid'][0]:g}, {p['valid'][1]:g}] | "
                      f"{'yes' if p['at_bound'] else 'no'} |")
     lines += ["", "Selection steps (the best candidate of each step, judged with the "
-              "condition left out):", "", "| candidate | chi2 in sample | chi2 condition "
-              "out | entered |", "|---|---|---|---|"]
+              "condition left out; worst: the largest chi2 of one condition left out):", "",
+              "| candidate | chi2 in sample | chi2 condition out | worst condition out | "
+              "entered |", "|---|---|---|---|---|"]
     for st in s["steps"]:
+        worst = f"{st['worst_out']:.3g}" if "worst_out" in st else "-"
         lines.append(f"| {st['candidate']} | {st['chi2_in']:.3g} | {st['chi2_out']:.3g} | "
-                     f"{'yes' if st['entered'] else 'no'} |")
+                     f"{worst} | {'yes' if st['entered'] else 'no'} |")
     return "\n".join(lines)
 
 

@@ -21,8 +21,11 @@ For every ``train_FD00x.txt`` in ``--data-dir`` (FD001-FD004, whichever are ther
 Inputs: ``data-driven`` is ``w + cmapss`` (the operating settings and NASA's 21 sensors;
 constant ones are dropped by the training), ``hybrid`` adds ``xs_hat + xv_hat + theta_hat``
 (the model's estimates of the measured and virtual sensors and the calibrated health
-parameters). Each run is one line of ``--work/runs.jsonl`` (resumed); the table goes to stdout
-and, with ``--results``, to ``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``.
+parameters), ``hybrid-theta`` adds ``theta_hat`` alone (the health estimate without the
+model's sensor estimates, which on a multi-condition file add as many columns as there are
+sensors and carry the condition more than the health). Each run is one line of
+``--work/runs.jsonl`` (resumed); the table goes to stdout and, with ``--results``, to
+``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``.
 
 Every figure here is a cross-validation figure on **training** units, not a test-set figure;
 the published figures beside them are test-set figures on NASA's test files (same
@@ -54,7 +57,8 @@ PUBLISHED = {
     "Zheng 2017 LSTM": {"FD001": 16.14, "FD002": 24.49, "FD003": 16.18, "FD004": 28.17},
     "Li 2018 DCNN": {"FD001": 12.61, "FD002": 22.36, "FD003": 12.64, "FD004": 23.31},
 }
-INPUTS = {"data-driven": "w+cmapss", "hybrid": "w+cmapss+xs_hat+xv_hat+theta_hat"}
+INPUTS = {"data-driven": "w+cmapss", "hybrid": "w+cmapss+xs_hat+xv_hat+theta_hat",
+          "hybrid-theta": "w+cmapss+theta_hat"}
 MAX_RUL = 125.0
 MULTI_CONDITION = {"FD002", "FD004"}
 

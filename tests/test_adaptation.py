@@ -17,7 +17,7 @@ from calibration.adaptation.data import fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
 from calibration.adaptation.noise import noise_from_data
-from calibration.adaptation.selection import shared_of
+from calibration.adaptation.selection import MIN_GAIN, OutOfSample, enters, shared_of
 from calibration.discrepancy.candidates import CandidateModel
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel
 from engine_model.analysis.reference import default_reference_path, load_reference, reference_w
@@ -116,6 +116,18 @@ def test_fleet_fit_separates_the_shared_level_from_each_engines_health(candidate
     # on one engine the two are the same residual: only the engines' prior tells them apart
     assert abs(fit.chi2_per_sample() - own.chi2_per_sample()) < 0.01
     assert fit.cost < own.cost - 5.0
+
+
+def test_a_candidate_that_breaks_the_worst_held_out_condition_does_not_enter():
+    current = OutOfSample(10.0, chi2={1: 8.0, 2: 12.0, 3: 10.0})
+    # the sum falls by half, but condition 3 left out gets worse than the worst today
+    breaks_one = OutOfSample(5.0, chi2={1: 1.0, 2: 1.0, 3: 13.0})
+    assert breaks_one.worst == 13.0
+    assert not enters(breaks_one, current)
+    assert enters(OutOfSample(9.0, chi2={1: 7.0, 2: 12.0, 3: 8.0}), current)
+    # no harm anywhere but too small a gain
+    small = 10.0 * (1.0 - MIN_GAIN / 2)
+    assert not enters(OutOfSample(small, chi2={1: 8.0, 2: 11.9, 3: 10.0}), current)
 
 
 def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
