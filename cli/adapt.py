@@ -37,6 +37,9 @@ def adapt(
                                               "(default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the held-out engine folds.")]
     = 0,
+    model_error: Annotated[float, typer.Option(
+        "--model-error", help="The model's own error, a relative std added to each sample's "
+        "noise (0: the noise alone).", min=0.0)] = 0.001,
     as_json: Annotated[bool, typer.Option("--json", help="Print the record as JSON.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -66,7 +69,7 @@ def adapt(
         err = console(stderr=True)
         say = None if (quiet or as_json) else (lambda msg: err.print(msg, soft_wrap=True))
         res = run(df, tuple(chans), cands, early_cycles,
-                  log=say, source=str(data), seed=seed)
+                  log=say, source=str(data), seed=seed, model_error=model_error)
         record = res.record()
         write_adapted(record, out, overwrite, (data,))
     if as_json:

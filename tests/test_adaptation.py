@@ -97,6 +97,19 @@ def test_a_channel_written_to_a_coarse_resolution_keeps_its_rounding_noise():
     assert (table["P15"] >= 0.1 / np.sqrt(12) - 1e-12).all()
 
 
+def test_each_samples_std_adds_the_models_own_error_to_the_noise():
+    df = simulated_fleet(units=6, cycles=12, seed=6)
+    noise_only, table = fleet_data(df, CHANNELS, model_error=0.0)
+    np.testing.assert_allclose(noise_only.sigma, table.loc[noise_only.condition,
+                                                           list(CHANNELS)].to_numpy())
+    both, _ = fleet_data(df, CHANNELS, model_error=0.002)
+    early = df[df["cycle"] <= 20]
+    level = early.groupby("condition")[list(CHANNELS)].mean().loc[both.condition].to_numpy()
+    np.testing.assert_allclose(both.sigma ** 2, noise_only.sigma ** 2 + (0.002 * level) ** 2)
+    with pytest.raises(InputError, match="model error"):
+        fleet_data(df, CHANNELS, model_error=-0.01)
+
+
 def test_fleet_fit_separates_the_shared_level_from_each_engines_health(candidate_model):
     """A fleet whose HPC efficiency is 1.5 % low in every engine: the shared design scaling
     takes the offset, the engines' own health stays near zero on average."""

@@ -13,7 +13,7 @@ from engine_model.channels import THETA_NAMES
 from engine_model.datasets import hyprog_version
 from engine_model.datasets.fingerprint import rows_fingerprint
 
-from .data import DEFAULT_CHANNELS, fleet_data
+from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
 from .fleet_fit import FleetData, FleetFit, Shared
 from .groups import build_groups
 from .noise import EARLY_CYCLES
@@ -98,14 +98,17 @@ class Adaptation:
 
 def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
           early_cycles: int = EARLY_CYCLES, units=None, model=None, log=None,
-          source: str = "data", engine_folds: int = 3, seed: int = 0) -> Adaptation:
+          source: str = "data", engine_folds: int = 3, seed: int = 0,
+          model_error: float = MODEL_ERROR) -> Adaptation:
     """Adapt the engine model to the fleet in ``df`` (package docstring). ``candidates``:
     registry names of :mod:`.groups` (default all); ``model``: a prebuilt
-    :class:`~calibration.discrepancy.candidates.CandidateModel` of the same groups (tests)."""
+    :class:`~calibration.discrepancy.candidates.CandidateModel` of the same groups (tests);
+    ``model_error``: the model's relative error in each sample's std (:mod:`.data`)."""
     from calibration.discrepancy.candidates import CandidateModel
 
     t0 = time.perf_counter()
-    data, noise = fleet_data(df, channels, early_cycles, units, source=source)
+    data, noise = fleet_data(df, channels, early_cycles, units, source=source,
+                             model_error=model_error)
     groups = build_groups(data.channels, candidates)
     model = model or CandidateModel(groups)
     sel = select(model, data, groups, log)
@@ -114,5 +117,5 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
                         seed)
     early = df[df["cycle"] <= early_cycles]
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
-            "samples": len(data.y), "early_cycles": early_cycles}
+            "samples": len(data.y), "early_cycles": early_cycles, "model_error": model_error}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
