@@ -39,7 +39,7 @@ def adapt(
     = 0,
     model_error: Annotated[float, typer.Option(
         "--model-error", help="The model's own error, a relative std added to each sample's "
-        "noise (0: the noise alone).", min=0.0)] = 0.001,
+        "noise (default 0: the noise alone).", min=0.0)] = 0.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the record as JSON.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
