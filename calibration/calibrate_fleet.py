@@ -22,6 +22,12 @@ worker builds that model variant once (:func:`worker_model`); the effects, as ca
 specifications (:meth:`Effect.spec`), are part of the ``calibration`` metadata, so a resumed
 run with other effects is refused like one with other settings.
 
+Noise. With ``CalibrationSetup(noise="data")`` (``hyprog calibrate --noise data``) the
+measurement covariance is the data's own noise: before any work, each sensor's std per
+operating condition is estimated from every unit of ``data``, within units, early in life
+(:func:`with_data_noise`), and stored in the setup (``noise_table``), so it is recorded in the
+metadata and a resumed run with other data's noise is refused like one with other settings.
+
 Tasks. The random-walk filters (``ukf``, ``ekf``) run many units in lockstep in one process
 (:mod:`calibration.kalman`), so their units are split into one group per worker, balanced by
 samples (longest-processing-time first) and cut into tasks of at most
@@ -69,9 +75,10 @@ leaves no worker behind.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +91,7 @@ from engine_model.validation import InputError
 
 from .base import estimator_class
 from .estimation_setup import CalibrationSetup
+from .measurement_noise import noise_from_data
 from .series import early_samples, prepare_unit, unit_label
 from .unit_check import N_CHECK, bound_hits, check_result, check_units_many
 
@@ -163,8 +171,9 @@ def plan_tasks(lengths: dict, method: str, n_workers: int,
 
 
 def setup_dict(setup: CalibrationSetup) -> dict:
-    d = asdict(setup)
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+    """The settings as the metadata stores them (JSON types: every tuple a list, at any
+    depth, so that a stored entry compares equal to the same settings now)."""
+    return json.loads(json.dumps(asdict(setup)))
 
 
 def effect_specs(effects) -> list[str]:
@@ -420,6 +429,8 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     setup = setup.for_dataset(meta)  # e.g. C-MAPSS's Ps30 out of the default sensors
     if not lengths:
         raise InputError(f"{source or 'data'}: no rows to calibrate")
+    if setup.noise == "data" and not setup.noise_table:
+        setup = with_data_noise(setup, data, source)
 
     calib_meta = {"method": method, "options": options, "setup": setup_dict(setup),
                   "hyprog_version": datasets.hyprog_version()}
@@ -449,6 +460,33 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
         todo = {u: n for u, n in lengths.items() if u not in done_before}
         return _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs,
                           scheduler, keep_results, progress, t0)
+
+
+def with_data_noise(setup: CalibrationSetup, data, source: str | None) -> CalibrationSetup:
+    """``setup`` with :attr:`~CalibrationSetup.noise_table` estimated from every unit of
+    ``data`` (a dataset path or the whole DataFrame; not only the units calibrated now, so
+    that a calibration resumed or extended to other units uses the same noise): each sensor's
+    std per operating condition, within units, early in life
+    (:func:`calibration.measurement_noise.noise_from_data`). Without a choice of sensors, a
+    sensor with one value per operating condition in the whole data (C-MAPSS's ``P2``: a
+    function of the operating point, with no noise to estimate and nothing of the health) is
+    left out (:attr:`~CalibrationSetup.exclude_sensors`)."""
+    where = source or "data"
+    df, meta = (data, {}) if isinstance(data, pd.DataFrame) else datasets.read_dataset(data)
+    for c in ("condition", "cycle"):
+        if c not in df.columns:
+            raise InputError(f"{where}: no column {c!r}: the data's noise (--noise data) is "
+                             "estimated per operating condition from early-life cycles (a "
+                             "C-MAPSS import has both)")
+    sensors = setup.for_dataset(meta).resolve_sensors(df.columns)
+    if setup.sensors is None:  # one value per condition (C-MAPSS's P2): a function of the
+        flat = [c for c in sensors  # operating point, no noise and nothing of the health
+                if (df.groupby("condition")[c].nunique() <= 1).all()]
+        setup = replace(setup, exclude_sensors=(*setup.exclude_sensors, *flat))
+        sensors = tuple(c for c in sensors if c not in flat)
+    table = noise_from_data(df, sensors, source=where)
+    rows = tuple((int(c), ch, float(table.loc[c, ch])) for c in table.index for ch in sensors)
+    return replace(setup, noise_table=rows)
 
 
 def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,

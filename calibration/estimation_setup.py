@@ -9,7 +9,18 @@ State-space model shared by all (paper eq. 5-6)::
   :class:`engine_model.solver.interface.SteadyStateModel`), ``y`` the chosen measured channels.
 - ``R_k``: the sensor noise of :mod:`engine_model.simulator.sensor_noise` (proportional to
   the reading; ``s = noise_scale``), evaluated at the measured reading (the difference to the
-  noise-free reading is a fraction of a percent of sigma).
+  noise-free reading is a fraction of a percent of sigma). That table is hyprog's simulator's
+  noise, set from C-MAPSS's scatter; on measured data the data's own noise is better known
+  than assumed: with ``noise="data"`` ``R_k = diag(s sigma_j,c(k))^2``, each channel's std at
+  the sample's operating condition ``c(k)`` estimated from the calibrated data themselves,
+  within units, early in life (:func:`calibration.measurement_noise.noise_from_data`; the data
+  need a ``condition`` label, as a C-MAPSS import has). On C-MAPSS FD001 that estimate is
+  2.4x the simulator's for T24, 1.7x for T30 and 2.2x for Ps30, but 7.5x smaller for P15
+  (written to 0.01 psia, its rounding alone) and 4x smaller for Nf. ``model_error`` (a
+  relative std, default 0) adds the model's own error in quadrature, ``(model_error y_k)^2``
+  (Kennedy & O'Hagan 2001; :func:`calibration.measurement_noise.with_model_error`), so that a
+  channel written almost without noise does not rule the estimate with the model's
+  mismatch.
 - ``Q_k``: a random walk in **operating time**, ``dtau_k`` [h] of operation before sample
   ``k``; ``q = drift``. Where the drift goes (``drift_per``):
 
@@ -42,6 +53,8 @@ import numpy as np
 
 from engine_model.channels import PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
 from engine_model.validation import ENVELOPE, InputError
+
+from .measurement_noise import check_model_error
 
 N_THETA = len(THETA_NAMES)
 
@@ -92,7 +105,14 @@ class CalibrationSetup:
     ``exclude_sensors`` channels left out of the default set: a dataset's metadata names
                     those that do not follow their stated definition (``not_physical`` of
                     a C-MAPSS import: its ``Ps30``) [()]
-    ``noise_scale`` multiplier of the documented sensor noise in ``R`` [1]
+    ``noise_scale`` multiplier of the noise std in ``R`` [1]
+    ``noise``       ``"model"`` (the simulator's documented noise) or ``"data"`` (each
+                    channel's noise per operating condition from the calibrated data;
+                    module docstring) ["model"]
+    ``noise_table`` the data's noise, ``((condition, channel, std), ...)``: filled by
+                    :func:`calibration.calibrate_fleet.calibrate_fleet` when ``noise`` is
+                    ``"data"`` and recorded with the settings [()]
+    ``model_error`` the model's own error, a relative std added in quadrature [0]
     ``drift``       random-walk std of theta per sqrt(hour of operation) (``hyprog calibrate
                     --drift``, the pipeline's ``[calibrate] drift``) [1e-3]
     ``prior_mean``  prior mean of the estimated theta at the first sample, one value or one
@@ -111,6 +131,9 @@ class CalibrationSetup:
     sensors: tuple | None = None
     exclude_sensors: tuple = ()
     noise_scale: float = 1.0
+    noise: str = "model"
+    noise_table: tuple = ()
+    model_error: float = 0.0
     drift: float = DEFAULT_DRIFT_STD_PER_SQRT_H
     prior_mean: float | tuple = 0.0
     prior_std: float | tuple = DEFAULT_PRIOR_STD
@@ -161,6 +184,15 @@ class CalibrationSetup:
             raise InputError("prior_std must be positive")
         if not (self.noise_scale > 0):
             raise InputError(f"noise_scale must be positive, got {self.noise_scale}")
+        if self.noise not in ("model", "data"):
+            raise InputError(f"noise must be 'model' or 'data', got {self.noise!r}")
+        table = tuple((int(c), str(ch), float(v)) for c, ch, v in self.noise_table)
+        if table and self.noise != "data":
+            raise InputError("noise_table is the data's noise: it needs noise='data'")
+        if any(not (np.isfinite(v) and v > 0) for *_, v in table):
+            raise InputError("noise_table: every std must be positive and finite")
+        object.__setattr__(self, "noise_table", table)
+        object.__setattr__(self, "model_error", check_model_error(self.model_error))
         if not (self.drift >= 0):
             raise InputError(f"drift must be >= 0, got {self.drift}")
         lo, hi = self.bounds
@@ -182,6 +214,23 @@ class CalibrationSetup:
     def param_index(self) -> np.ndarray:
         """Positions of ``params`` in :data:`THETA_NAMES`."""
         return np.array([THETA_NAMES.index(q) for q in self.params], int)
+
+    def data_noise(self, condition: np.ndarray, sensors, where: str = "") -> np.ndarray:
+        """(N, len(sensors)) noise std of the data at each sample's operating ``condition``
+        from :attr:`noise_table` (``noise="data"``); a condition or channel the table lacks
+        is an error naming it."""
+        table = {(c, ch): v for c, ch, v in self.noise_table}
+        conds = np.unique(condition)
+        missing = [(int(c), ch) for c in conds for ch in sensors if (int(c), ch) not in table]
+        if missing:
+            c, ch = missing[0]
+            raise InputError(f"{where}condition {c}, channel {ch}: no noise estimate in the "
+                             "data's noise table (noise='data')")
+        out = np.empty((len(condition), len(sensors)))
+        for c in conds:
+            rows = condition == c
+            out[rows] = [table[(int(c), ch)] for ch in sensors]
+        return out
 
     def prior_mean_vec(self) -> np.ndarray:
         return _vec(self.prior_mean, self.k, "prior_mean")

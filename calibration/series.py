@@ -20,6 +20,7 @@ from engine_model.units import C_TO_K, R_PER_K
 from engine_model.validation import ENVELOPE, InputError, check_w
 
 from .estimation_setup import CalibrationSetup
+from .measurement_noise import with_model_error
 
 
 def error_prefix(unit, source) -> str:
@@ -148,7 +149,15 @@ def prepare_unit(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> Unit
         check_w(w, np.asarray(index), "data")
     except InputError as e:
         raise InputError(f"{where}{str(e).removeprefix('data: ')}{_t2_hint(w)}") from None
-    sigma = sigma_abs(y, sensors, scale=setup.noise_scale)
+    if setup.noise == "data":
+        if "condition" not in df.columns:
+            raise InputError(f"{where}no column 'condition': the data's noise (noise='data') "
+                             "is per operating condition")
+        sigma = setup.noise_scale * setup.data_noise(
+            df["condition"].to_numpy(), sensors, where)
+    else:
+        sigma = sigma_abs(y, sensors, scale=setup.noise_scale)
+    sigma = with_model_error(sigma, setup.model_error, y)
     n = len(df)
     cycle = df["cycle"].to_numpy() if "cycle" in df.columns else None
     _check_duplicate_times(df, where)

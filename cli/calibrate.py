@@ -42,7 +42,8 @@ app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, **APP_SETTINGS,
                        "'hyprog calibrate DATA --out F' is 'hyprog calibrate run DATA --out F'.")
 
 
-def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
+def _setup(params, sensors, drift, noise_scale, prior_std, drift_per, noise=None,
+           model_error=None):
     from calibration import CalibrationSetup
     from calibration.discrepancy.drift_mle import drift_value
     from engine_model.channels import THETA_NAMES
@@ -50,7 +51,7 @@ def _setup(params, sensors, drift, noise_scale, prior_std, drift_per):
     p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
                 drift=drift_value(drift), noise_scale=noise_scale,
-                prior_std=prior_std, drift_per=drift_per)
+                prior_std=prior_std, drift_per=drift_per, noise=noise, model_error=model_error)
     return CalibrationSetup(**kw)
 
 
@@ -82,6 +83,14 @@ Drift = Annotated[str | None, typer.Option(
     "data by maximum likelihood (default: 1e-3).")]
 NoiseScale = Annotated[float | None, typer.Option(
     "--noise-scale", help="Multiplier of the documented sensor noise in R (default: 1).")]
+Noise = Annotated[Literal["model", "data"] | None, typer.Option(
+    "--noise", help="The sensor noise in R: 'model' (the simulator's documented noise) or "
+    "'data' (each sensor's std per operating condition, estimated from the data's early-life "
+    "cycles within units; needs a condition column, as a C-MAPSS import has) (default: "
+    "model).")]
+ModelError = Annotated[float | None, typer.Option(
+    "--model-error", help="The model's own error, a relative std added to the noise in "
+    "quadrature (default: 0).")]
 PriorStd = Annotated[float | None, typer.Option(
     "--prior-std", help="Prior std of theta (default: 0.02).")]
 DriftPer = Annotated[str | None, typer.Option(
@@ -117,7 +126,8 @@ def run(
     noise_scale: NoiseScale = None, prior_std: PriorStd = None, drift_per: DriftPer = None,
     units: Units = None, jobs: Jobs = 1, scheduler: Scheduler = None, window: Window = None,
     stride: Stride = None, mode: Mode = None, hessian: Hessian = None,
-    model_effects: ModelEffects = None, as_json: AsJson = False, quiet: Quiet = False,
+    model_effects: ModelEffects = None, noise: Noise = None, model_error: ModelError = None,
+    as_json: AsJson = False, quiet: Quiet = False,
 ):
     """Calibrate every unit and write the feature table (inputs, x_hat, theta_hat, std).
 
@@ -128,16 +138,19 @@ def run(
     import warnings
 
     from calibration import UnobservableWarning
-    from calibration.calibrate_fleet import calibrate_fleet
+    from calibration.calibrate_fleet import calibrate_fleet, with_data_noise
     from calibration.discrepancy.drift_mle import setup_with_drift_mle
     from calibration.unit_check import AT_BOUND, summarise_bound_hits
     from engine_model.channels import XS_NAMES
 
     with user_errors(output=out), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnobservableWarning)
-        setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
+        setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per, noise,
+                       model_error)
         opts = _options(method, window, stride, mode, hessian)
         unit_list = parse_units(units)
+        if setup.noise == "data":  # before the drift's estimate, which needs it
+            setup = with_data_noise(setup, data, str(data))
         setup = setup_with_drift_mle(drift, data, setup, unit_list)
         adapted = None
         if model_effects is not None:

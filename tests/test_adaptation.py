@@ -16,9 +16,9 @@ from calibration.adaptation import adapt, load_adapted, write_adapted
 from calibration.adaptation.data import fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
-from calibration.adaptation.noise import noise_from_data
 from calibration.adaptation.selection import MIN_GAIN, OutOfSample, enters, shared_of
 from calibration.discrepancy.candidates import CandidateModel
+from calibration.measurement_noise import noise_from_data
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel
 from engine_model.analysis.reference import default_reference_path, load_reference, reference_w
 from engine_model.physics.effects import parse_effect_spec

@@ -356,3 +356,89 @@ def test_import_calibrate_train_evaluate_run_unchanged_on_six_conditions(runner,
     assert r.exit_code == 0, r.output
     last = json.loads(r.stdout)["last"]["units"]["4"]
     assert last["cycle"] == 12 and 0.0 <= last["RUL_pred"] <= 125.0
+
+
+def noisy_fd002_lines(units=4, cycles=12, seed=0):
+    """FD002-like lines at NASA's six operating points with per-engine offsets and noise of a
+    known size on every sensor but P2 (one value per condition, as in the real files)."""
+    import pandas as pd
+
+    from data_samples import sample_path
+
+    rng = np.random.default_rng(seed)
+    means = pd.read_csv(sample_path("cmapss-fd002-operating-points.csv"))
+    lines = []
+    for u in range(1, units + 1):
+        offset = rng.normal(0.0, 5e-4, len(CMAPSS_SENSORS))
+        for c in range(1, cycles + 1):
+            k = (u + c) % 6
+            a, m, tra = OPERATING_CONDITIONS[k]
+            point = means.iloc[k]
+            sensors = [point[n] if n in point.index else s
+                       for n, s in zip(CMAPSS_SENSORS, FD001_SENSORS, strict=True)]
+            sensors = [v if n in ("P2", *CONSTANT_FD001)
+                       else v * (1 + offset[j] + 1e-3 * rng.standard_normal())
+                       for j, (n, v) in enumerate(zip(CMAPSS_SENSORS, sensors, strict=True))]
+            lines.append(f"{u} {c} {a:.4f} {m:.4f} {tra:.1f} "
+                         + " ".join(f"{v:.4f}" for v in sensors) + "  ")
+    return lines
+
+
+def test_calibrate_with_the_datas_own_noise_per_condition(runner, tmp_path):
+    """``--noise data``: each sensor's std per operating condition from the data (within
+    engines, early life) is the R of the filter, recorded in the metadata; P2 (one value per
+    condition) is left out; the model's own error adds in quadrature; a resumed run agrees."""
+    from calibration import CalibrationSetup
+    from calibration.calibrate_fleet import with_data_noise
+    from calibration.measurement_noise import noise_from_data
+    from calibration.series import prepare_unit
+    from engine_model.datasets import read_metadata
+
+    train = write_lines(tmp_path / "train_FD002.txt", noisy_fd002_lines())
+    data, feats = tmp_path / "fd002", tmp_path / "features"
+    assert runner.invoke(app, ["data", "import-cmapss", str(train), "--out",
+                               str(data)]).exit_code == 0
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--noise", "data",
+                            "--quiet"])
+    assert r.exit_code == 0, r.output
+    setup = read_metadata(feats)["calibration"]["setup"]
+    assert setup["noise"] == "data" and "P2" in setup["exclude_sensors"]
+    df, _ = read_dataset(data)
+    used = sorted({ch for _, ch, _ in setup["noise_table"]})
+    assert "P2" not in used and {"T24", "T30", "T50", "P30", "Nc"} <= set(used)
+    expected = noise_from_data(df, used)
+    for c, ch, std in setup["noise_table"]:
+        assert std == pytest.approx(expected.loc[c, ch], rel=1e-12)
+    assert runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--noise", "data",
+                               "--quiet"]).exit_code == 0  # resumed: the same settings
+    # the filter's R: the table at each row's condition, times --noise-scale, with the model's
+    # own error in quadrature
+    base = with_data_noise(CalibrationSetup(noise="data", sensors=tuple(used)), df, "data")
+    unit = df[df["unit"] == 1].reset_index(drop=True)
+    for scale, me in ((1.0, 0.0), (2.0, 0.001)):
+        s = prepare_unit(unit, CalibrationSetup(**{**base.__dict__, "noise_scale": scale,
+                                                   "model_error": me}))
+        want = scale * expected.loc[unit["condition"], used].to_numpy()
+        want = np.hypot(want, me * unit[used].to_numpy())
+        np.testing.assert_allclose(s.sigma, want, rtol=1e-12)
+
+
+def test_data_noise_needs_an_operating_condition_label(runner, tmp_path):
+    from calibration import CalibrationSetup
+    from calibration.calibrate_fleet import calibrate_fleet
+
+    train = write_lines(tmp_path / "train_FD002.txt", noisy_fd002_lines(units=2, cycles=12))
+    df, _ = read_cmapss(train)
+    with pytest.raises(InputError, match="no column 'condition'"):
+        calibrate_fleet(df.drop(columns="condition"), setup=CalibrationSetup(noise="data"))
+    with pytest.raises(InputError, match="noise must be 'model' or 'data'"):
+        CalibrationSetup(noise="measured")
+    with pytest.raises(InputError, match=r"must be in \[0, 0.1\)"):
+        CalibrationSetup(model_error=0.5)
+    data = tmp_path / "fd002"
+    assert runner.invoke(app, ["data", "import-cmapss", str(train), "--out",
+                               str(data)]).exit_code == 0
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "f"), "--noise",
+                            "data", "--sensors", "T30,P2"])
+    assert_user_error(r, "P2", "no noise to estimate", code=None)
+    assert not (tmp_path / "f").exists()

@@ -13,10 +13,10 @@ from engine_model.channels import THETA_NAMES
 from engine_model.datasets import hyprog_version
 from engine_model.datasets.fingerprint import rows_fingerprint
 
+from ..measurement_noise import EARLY_CYCLES
 from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
 from .fleet_fit import FleetData, FleetFit, Shared
 from .groups import build_groups
-from .noise import EARLY_CYCLES
 from .selection import Selection, engines_out, mean_errors, select, shared_of
 
 

@@ -1,11 +1,12 @@
 """A fleet's early-life samples as the arrays of the fleet fit.
 
-Early life is ``cycle <= early_cycles`` (default :data:`.noise.EARLY_CYCLES`): engines nearly
+Early life is ``cycle <= early_cycles`` (default
+:data:`calibration.measurement_noise.EARLY_CYCLES`): engines nearly
 new, whose health is their manufacturing scatter plus the first wear. Each sample's std
 combines its channel's noise at its operating condition, estimated from the same data
-(:func:`.noise.noise_from_data`), with the model's own error (Kennedy & O'Hagan, "Bayesian
-calibration of computer models", JRSS B 63, 2001: the model discrepancy as a term of the
-likelihood)::
+(:func:`calibration.measurement_noise.noise_from_data`), with the model's own error (Kennedy
+& O'Hagan, "Bayesian calibration of computer models", JRSS B 63, 2001: the model discrepancy
+as a term of the likelihood; :func:`calibration.measurement_noise.with_model_error`)::
 
     sigma_nj^2 = sigma_noise,j,c(n)^2 + (model_error * ybar_j,c(n))^2
 
@@ -28,8 +29,8 @@ import pandas as pd
 from engine_model.channels import W_NAMES
 from engine_model.validation import InputError
 
+from ..measurement_noise import EARLY_CYCLES, check_model_error, noise_from_data, with_model_error
 from .fleet_fit import FleetData
-from .noise import EARLY_CYCLES, noise_from_data
 
 #: The channels fitted by default: every C-MAPSS sensor that hyprog's model computes and whose
 #: definition the data keep (``Ps30`` and ``phi`` do not: engine_model.analysis.reference),
@@ -46,8 +47,7 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
                model_error: float = MODEL_ERROR) -> tuple[FleetData, pd.DataFrame]:
     """``(FleetData, noise table)`` of the early-life rows of ``units`` (default all); each
     sample's std the noise and ``model_error`` combined (module docstring)."""
-    if not (np.isfinite(model_error) and 0.0 <= model_error < 0.1):
-        raise InputError(f"model error {model_error}: must be in [0, 0.1) (a relative std)")
+    model_error = check_model_error(model_error)
     missing = [c for c in (*W_NAMES, *channels) if c not in df.columns]
     if missing:
         raise InputError(f"{source}: missing column(s) {', '.join(missing)}")
@@ -63,7 +63,7 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
     cond = early[condition].to_numpy()
     sigma = noise.loc[cond, list(channels)].to_numpy(float)
     level = early.groupby(condition)[list(channels)].mean().loc[cond].to_numpy(float)
-    sigma = np.hypot(sigma, model_error * np.abs(level))
+    sigma = with_model_error(sigma, model_error, level)
     ids, unit = np.unique(early["unit"].to_numpy(), return_inverse=True)
     data = FleetData(early[list(W_NAMES)].to_numpy(float), early[list(channels)].to_numpy(float),
                      sigma, unit.astype(int), tuple(int(u) for u in ids), cond.astype(int),

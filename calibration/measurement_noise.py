@@ -1,5 +1,9 @@
-"""Each channel's noise level from the data themselves: within engines, per operating
-condition, early in life.
+"""Each channel's noise level from the data themselves (within engines, per operating
+condition, early in life), and the model's own error added to it.
+
+Used by the fleet fit of :mod:`calibration.adaptation` and by the estimators' measurement
+covariance when a calibration asks for the data's noise (``CalibrationSetup(noise="data")``,
+``hyprog calibrate --noise data``; :mod:`calibration.estimation_setup`).
 
 Early in life an engine's health barely changes, so two early-life readings of one engine at
 one operating condition differ by measurement noise (and by the scatter of the operating
@@ -20,6 +24,15 @@ difference between two distinct values of the channel within one condition, and 
 estimate is floored at ``q / sqrt(12)``. A channel with one value per condition (C-MAPSS's
 ``P2``) has no resolution to find and no noise: it is refused. The
 documented noise of hyprog's simulator is never used here: C-MAPSS's noise is not ours.
+
+The model's own error (Kennedy & O'Hagan, "Bayesian calibration of computer models", JRSS B
+63, 2001: the model discrepancy as a term of the likelihood) enters as a relative std added
+in quadrature to the noise::
+
+    sigma^2 = sigma_noise^2 + (model_error * level)^2
+
+with ``level`` the reading (or its mean at the condition). It is a decision, not a fit: the
+precision asked of a 0D cycle model's prediction (:func:`with_model_error`).
 """
 
 from __future__ import annotations
@@ -65,6 +78,22 @@ def noise_from_data(df: pd.DataFrame, channels, condition: str = "condition",
         raise InputError(f"{source}: channel(s) {', '.join(flat)} do not vary within any "
                          "engine at some condition: no noise to estimate (leave them out)")
     return table
+
+
+def check_model_error(model_error: float) -> float:
+    """``model_error`` as a float, or an error unless it is a relative std in [0, 0.1)."""
+    if not (np.isfinite(model_error) and 0.0 <= model_error < 0.1):
+        raise InputError(f"model error {model_error}: must be in [0, 0.1) (a relative std)")
+    return float(model_error)
+
+
+def with_model_error(sigma, model_error: float, level) -> np.ndarray:
+    """The noise std ``sigma`` and the model's own error ``model_error * |level|`` combined
+    in quadrature (module docstring); ``sigma`` itself when ``model_error`` is 0."""
+    sigma = np.asarray(sigma, float)
+    if model_error == 0.0:
+        return sigma
+    return np.hypot(sigma, model_error * np.abs(np.asarray(level, float)))
 
 
 def resolution(values: np.ndarray) -> float:
