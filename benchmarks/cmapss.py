@@ -68,13 +68,25 @@ def hyprog(*args: str) -> None:
                    stderr=subprocess.DEVNULL)
 
 
+def noise_options(noise: str, model_error: float) -> tuple[list[str], str]:
+    """``hyprog calibrate``'s noise options and the label they add (none by default)."""
+    args = [] if noise == "model" else ["--noise", noise]
+    args += [] if model_error == 0 else ["--model-error", f"{model_error:g}"]
+    return args, " ".join(args)
+
+
 def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "default",
-                   adapted: Path | None = None) -> Path:
+                   adapted: Path | None = None, noise: str = "model",
+                   model_error: float = 0.0) -> Path:
     """Import and calibrate ``subset`` into ``work`` (once) with ``hyprog calibrate --params
-    params`` (and ``--model-effects adapted``); the feature table's path."""
+    params`` (and ``--model-effects adapted``, ``--noise``, ``--model-error``); the feature
+    table's path."""
     raw = work / subset.lower()
+    noise_args, noise_tag = noise_options(noise, model_error)
     feat = work / (f"{subset.lower()}-features" + ("" if params == "default" else f"-{params}")
-                   + ("" if adapted is None else f"-adapted-{file_sha(adapted)[:8]}"))
+                   + ("" if adapted is None else f"-adapted-{file_sha(adapted)[:8]}")
+                   + ("" if not noise_tag else "-" + noise_tag.replace("--", "")
+                      .replace(" ", "-")))
     if not raw.exists():
         hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--out",
                str(raw), "--overwrite")
@@ -82,6 +94,7 @@ def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "defau
         t0 = time.perf_counter()
         extra = [] if params == "default" else ["--params", params]
         extra += [] if adapted is None else ["--model-effects", str(adapted)]
+        extra += noise_args
         hyprog("calibrate", str(raw), "--out", str(feat), *extra)
         print(f"{subset}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return feat
@@ -184,6 +197,11 @@ def main(argv=None) -> int:
     ap.add_argument("--model-effects", type=Path, default=None,
                     help="an adapted model (hyprog adapt) for the calibration of the hybrid "
                     "inputs (a separate features folder; runs labelled 'adapted')")
+    ap.add_argument("--noise", choices=("model", "data"), default="model",
+                    help="the noise in the calibration's R (hyprog calibrate --noise; runs "
+                    "labelled with it when not 'model')")
+    ap.add_argument("--model-error", type=float, default=0.0,
+                    help="hyprog calibrate --model-error (runs labelled with it when not 0)")
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--fold-seed", type=int, default=0)
@@ -213,6 +231,7 @@ def main(argv=None) -> int:
         overrides[k] = json.loads(v) if v[:1] in "0123456789-[{tfn" else v
     subsets = [s for s in args.subsets.split(",")
                if (args.data_dir / f"train_{s}.txt").exists()]
+    noise_tag = noise_options(args.noise, args.model_error)[1]
     rows = []
     for subset in subsets:
         if args.report:
@@ -220,7 +239,8 @@ def main(argv=None) -> int:
                      for r in done.values() if r["subset"] == subset
                      and (r["kind"] == "floors" or r["model"] in args.models.split(","))]
             continue
-        feat = prepare_subset(args.data_dir, args.work, subset, args.params, args.model_effects)
+        feat = prepare_subset(args.data_dir, args.work, subset, args.params, args.model_effects,
+                              args.noise, args.model_error)
         df, meta = read_dataset(feat)
         units = sorted(df["unit"].unique().tolist())
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
@@ -255,6 +275,9 @@ def main(argv=None) -> int:
                         if args.model_effects is not None and name != "data-driven":
                             body["model_effects"] = file_sha(args.model_effects)
                             label = f"{label}, adapted {body['model_effects'][:8]}"
+                        if noise_tag and name != "data-driven":
+                            body["noise"] = noise_tag
+                            label = f"{label} {noise_tag}"
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})

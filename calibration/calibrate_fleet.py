@@ -283,6 +283,8 @@ def input_record(df: pd.DataFrame, unit: int, sensors) -> dict:
 #: Setup keys of feature tables written by an earlier hyprog -> today's name (a resumed
 #: calibration compares settings, not spellings).
 LEGACY_SETUP_KEYS = {"drift_std_per_sqrt_h": "drift"}
+#: Setup keys added later -> the value every table written before them was computed with.
+ADDED_SETUP_KEYS = {"noise": "model", "noise_table": [], "model_error": 0.0}
 
 
 def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | None) -> None:
@@ -294,7 +296,7 @@ def check_resume_unit(out: Path, unit: int, calib_meta: dict, record: dict | Non
     setup = stored.get("setup")
     if isinstance(setup, dict):  # written before the field was renamed: the same setting
         setup = {LEGACY_SETUP_KEYS.get(k, k): v for k, v in setup.items()}
-        stored = {**stored, "setup": setup}
+        stored = {**stored, "setup": {**ADDED_SETUP_KEYS, **setup}}
     diff = _first_difference({k: v for k, v in stored.items() if k != "input"},
                              {k: v for k, v in calib_meta.items() if k != "input"})
     if diff is not None:

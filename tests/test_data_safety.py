@@ -191,7 +191,9 @@ def test_a_folder_never_mixes_settings(runner, tmp_path, small):
 
 def test_a_folder_written_before_the_drift_rename_resumes(runner, tmp_path, small):
     """``CalibrationSetup.drift`` was ``drift_std_per_sqrt_h`` (issue 31 gave the setting
-    one name): a unit written then holds the same setting under the old key, and resumes."""
+    one name): a unit written then holds the same setting under the old key, and resumes;
+    so does one written before the noise settings (``noise``, ``noise_table``,
+    ``model_error``) existed."""
     import pyarrow.parquet as pq
 
     data = write(*small, tmp_path / "fleet")
@@ -203,6 +205,8 @@ def test_a_folder_written_before_the_drift_rename_resumes(runner, tmp_path, smal
     meta = json.loads(table.schema.metadata[b"hyprog"])
     setup = meta["calibration"]["setup"]
     setup["drift_std_per_sqrt_h"] = setup.pop("drift")
+    for key in ("noise", "noise_table", "model_error"):  # added since: their defaults then
+        del setup[key]
     pq.write_table(table.replace_schema_metadata({b"hyprog": json.dumps(meta).encode()}),
                    part)
     r = run(runner, "calibrate", data, "--units", "1", "--drift", "0.02", "--out", out,
