@@ -2,10 +2,12 @@
 well its theta_hat carries the wear, for each noise setting (C-MAPSS training files).
 
     python benchmarks/calibration_noise.py --data-dir ../shared/data/cmapss --subsets FD002 \\
-        [--work out/cmapss] [--results benchmarks/results/calibration_noise]
+        [--work out/cmapss] [--results benchmarks/results/calibration_noise] \\
+        [--model-effects benchmarks/results/adaptation/fd002-adapted.json]
 
 For each subset and each setting of :data:`SETTINGS` (``hyprog calibrate``'s ``--noise`` and
-``--model-error``), the UKF with the paper's three parameters on every training unit, and:
+``--model-error``), the UKF with the paper's three parameters on every training unit (with
+``--model-effects FILE``, every setting again with that adapted model), and:
 
 - **mean NIS / m**: the normalised innovation squared ``nu^T S^-1 nu`` averaged over the
   fleet's samples and divided by the number of channels ``m``; 1 for a filter whose R and Q
@@ -14,12 +16,15 @@ For each subset and each setting of :data:`SETTINGS` (``hyprog calibrate``'s ``-
 - **jitter**: the std of theta_hat's change from one cycle to the next within a unit (what
   the filter lets through of the noise and of the model's error at each operating
   condition);
-- **spread**: the largest minus the smallest condition mean of theta_hat over cycles 1-20
-  (new engines should not depend on the condition);
+- **new** and **spread**: the mean over conditions of theta_hat's condition means over
+  cycles 1-20, and the largest minus the smallest of them (new engines should be near 0 and
+  should not depend on the condition);
 - **wear**: the median over units of theta_hat's change from cycles 1-20 to the last 10
   cycles, and **wear / jitter**, the signal of the wear against the cycle-to-cycle scatter.
 
-It trains nothing and reads the RUL only to find the last 10 cycles; the settings that
+The last setting is ``--model-error consistent`` (:mod:`calibration.consistency`): its row
+shows the value found and, in ``seconds``, the search as well. It trains nothing and reads
+the RUL only to find the last 10 cycles; the settings that
 ``benchmarks/cmapss.py --noise --model-error`` cross-validates are chosen from this table.
 """
 
@@ -39,7 +44,7 @@ sys.path.insert(0, str(ROOT))  # the package, before this folder's calibration.p
 
 #: (``--noise``, ``--model-error``) settings compared.
 SETTINGS = (("model", 0.0), ("data", 0.0), ("model", 0.003), ("data", 0.001), ("data", 0.003),
-            ("data", 0.005), ("data", 0.01), ("data", 0.015))
+            ("data", 0.005), ("data", 0.01), ("data", 0.015), ("data", "consistent"))
 EARLY, LATE = 20, 10
 
 
@@ -52,18 +57,29 @@ def imported(data_dir: Path, work: Path, subset: str) -> Path:
     return raw
 
 
-def measure(raw: Path, noise: str, model_error: float) -> dict:
-    """Calibrate every unit of ``raw`` with the setting; the module docstring's figures."""
+def measure(raw: Path, noise: str, model_error: float | str,
+            adapted: Path | None = None) -> dict:
+    """Calibrate every unit of ``raw`` with the setting (and the adapted model ``adapted``);
+    the module docstring's figures. ``model_error="consistent"``: the one
+    :func:`calibration.consistency.consistent_model_error` finds (its value in the row)."""
     import warnings
 
     from calibration import CalibrationSetup, UnobservableWarning
     from calibration.calibrate_fleet import calibrate_fleet, features_of
 
+    effects = ()
+    if adapted is not None:
+        from calibration.adaptation import load_adapted
+        effects = load_adapted(adapted).effects
     t0 = time.perf_counter()
+    chosen = model_error
+    if model_error == "consistent":
+        from calibration.consistency import consistent_model_error
+        model_error, _ = consistent_model_error(raw, CalibrationSetup(noise=noise), effects)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnobservableWarning)
         run = calibrate_fleet(raw, "ukf", CalibrationSetup(noise=noise, model_error=model_error),
-                              check_data=False)
+                              check_data=False, effects=effects)
     seconds = time.perf_counter() - t0
     res = list(run.results.values())
     n = np.array([r.diagnostics["n_samples"] - r.diagnostics["n_nonconverged"] for r in res])
@@ -76,12 +92,15 @@ def measure(raw: Path, noise: str, model_error: float) -> dict:
     jitter = df.groupby("unit")[cols].diff().std()
     wear = (df[df["RUL"] < LATE].groupby("unit")[cols].mean()
             - early.groupby("unit")[cols].mean()).median()
-    row = {"noise": noise, "model_error": model_error,
+    row = {"model": "adapted" if adapted else "as designed", "noise": noise,
+           "model_error": (f"{model_error:.4g} (consistent)" if chosen == "consistent"
+                           else model_error),
            "NIS / m": float(np.nansum(nis * n) / n[np.isfinite(nis)].sum() / m),
            "seconds": round(seconds, 1)}
     for c in cols:
         q = c.removesuffix("_mod_hat")
         row[f"{q} jitter %"] = 100 * jitter[c]
+        row[f"{q} new %"] = 100 * cond[c].mean()
         row[f"{q} spread %"] = 100 * (cond[c].max() - cond[c].min())
         row[f"{q} wear %"] = 100 * wear[c]
         row[f"{q} wear / jitter"] = abs(wear[c]) / jitter[c]
@@ -103,26 +122,27 @@ def main(argv=None) -> int:
     ap.add_argument("--subsets", default="FD002")
     ap.add_argument("--work", type=Path, default=Path("out/cmapss"))
     ap.add_argument("--results", type=Path, default=None)
+    ap.add_argument("--model-effects", type=Path, default=None,
+                    help="an adapted model (hyprog adapt): every setting again with it")
     a = ap.parse_args(argv)
     a.work.mkdir(parents=True, exist_ok=True)
     text = []
     for subset in a.subsets.split(","):
         raw = imported(a.data_dir, a.work, subset)
         rows = []
-        for noise, me in SETTINGS:
-            rows.append(measure(raw, noise, me))
-            print(f"{subset} --noise {noise} --model-error {me:g}: NIS/m "
-                  f"{rows[-1]['NIS / m']:.3g}", file=sys.stderr, flush=True)
+        for adapted in (None, a.model_effects) if a.model_effects else (None,):
+            for noise, me in SETTINGS:
+                rows.append(measure(raw, noise, me, adapted))
+                print(f"{subset} {rows[-1]['model']} --noise {noise} --model-error {me}: "
+                      f"NIS/m {rows[-1]['NIS / m']:.3g}", file=sys.stderr, flush=True)
         t = pd.DataFrame(rows)
-        text += [f"## {subset}", "", markdown(t), ""]
-        if a.results:
+        md = f"# {subset}: the noise in the calibration's R\n\n{markdown(t)}\n"
+        text.append(md)
+        if a.results:  # one table per subset: RESULTS/fd00x.md and .csv
             a.results.mkdir(parents=True, exist_ok=True)
             t.to_csv(a.results / f"{subset.lower()}.csv", index=False, float_format="%.4g")
-    out = "\n".join(text)
-    print(out)
-    if a.results:
-        (a.results / "calibration_noise.md").write_text(
-            "# The noise in the calibration's R (`benchmarks/calibration_noise.py`)\n\n" + out)
+            (a.results / f"{subset.lower()}.md").write_text(md)
+    print("\n".join(text))
     return 0
 
 

@@ -49,6 +49,12 @@ def _setup(params, sensors, drift, noise_scale, prior_std, drift_per, noise=None
     from engine_model.channels import THETA_NAMES
 
     p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
+    if model_error is not None:
+        try:
+            model_error = 0.0 if model_error == "consistent" else float(model_error)
+        except ValueError:
+            raise CliError(f"--model-error {model_error}: a relative std such as 0.003, or "
+                           "'consistent'") from None
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
                 drift=drift_value(drift), noise_scale=noise_scale,
                 prior_std=prior_std, drift_per=drift_per, noise=noise, model_error=model_error)
@@ -88,9 +94,10 @@ Noise = Annotated[Literal["model", "data"] | None, typer.Option(
     "'data' (each sensor's std per operating condition, estimated from the data's early-life "
     "cycles within units; needs a condition column, as a C-MAPSS import has) (default: "
     "model).")]
-ModelError = Annotated[float | None, typer.Option(
+ModelError = Annotated[str | None, typer.Option(
     "--model-error", help="The model's own error, a relative std added to the noise in "
-    "quadrature (default: 0).")]
+    "quadrature, or 'consistent': the one at which the filter's mean normalised innovation "
+    "squared per channel is 1 over the fleet (several calibrations) (default: 0).")]
 PriorStd = Annotated[float | None, typer.Option(
     "--prior-std", help="Prior std of theta (default: 0.02).")]
 DriftPer = Annotated[str | None, typer.Option(
@@ -149,13 +156,21 @@ def run(
                        model_error)
         opts = _options(method, window, stride, mode, hessian)
         unit_list = parse_units(units)
-        if setup.noise == "data":  # before the drift's estimate, which needs it
-            setup = with_data_noise(setup, data, str(data))
-        setup = setup_with_drift_mle(drift, data, setup, unit_list)
         adapted = None
         if model_effects is not None:
             from calibration.adaptation import load_adapted
             adapted = load_adapted(model_effects)
+        if setup.noise == "data":  # before the estimates below, which need it
+            setup = with_data_noise(setup, data, str(data))
+        if model_error == "consistent":
+            from dataclasses import replace
+
+            from calibration.consistency import consistent_model_error
+            e, _ = consistent_model_error(
+                data, setup, adapted.effects if adapted else (), unit_list,
+                log=None if (as_json or quiet) else lambda m: console().print(m))
+            setup = replace(setup, model_error=e)
+        setup = setup_with_drift_mle(drift, data, setup, unit_list)
         with progress_bar(f"calibrating ({method})", as_json or quiet) as update:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
                                   keep_results=False, progress=update,

@@ -312,3 +312,26 @@ def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
         f"HPT_eff_mod_hat is at its bound -0.15 in 1 of 9 units (unit 8; 1 of their 150 "
         f"samples): {AT_BOUND}"]
     assert summarise_bound_hits({1: {"samples": 5, "at_bound": []}}) == []
+
+
+def test_the_consistent_model_error_brings_the_mean_nis_per_channel_to_one(tmp_path):
+    """On simulated data the filter is consistent as it is (model error 0); with T30 1 % off
+    the model, the model error found makes the fleet's mean NIS per channel 1 (within the
+    search's tolerance: consistent there, not at the next smaller value)."""
+    from calibration.consistency import RTOL, consistent_model_error, fleet_nis
+
+    df, _ = datasets.read_dataset(REPO / "data_samples" / "tiny", units=[1, 2])
+    df = df.groupby("unit").head(400).reset_index(drop=True)
+    e, nis = consistent_model_error(df, CalibrationSetup())
+    assert e == 0.0 and 0.5 < nis <= 1.0
+    biased = df.assign(T30=df["T30"] * 1.01)
+    assert fleet_nis(biased, CalibrationSetup()) > 2.0
+    e, nis = consistent_model_error(biased, CalibrationSetup())
+    assert 1e-3 < e < 1e-2 and 0.9 < nis <= 1.0
+    assert fleet_nis(biased, CalibrationSetup(model_error=e / (1 + 2 * RTOL))) > 1.0
+    from tests.cli_checks import assert_user_error, cli_runner
+
+    r = cli_runner().invoke(app, ["calibrate", str(REPO / "data_samples" / "tiny"), "--out",
+                                  str(tmp_path / "f"), "--model-error", "often"])
+    assert_user_error(r, "--model-error often", code=None)
+    assert not (tmp_path / "f").exists()
