@@ -63,10 +63,20 @@ def fleet_nis(data, setup: CalibrationSetup, effects=(), units=None) -> float:
 def consistent_model_error(data, setup: CalibrationSetup, effects=(), units=None,
                            log=None) -> tuple[float, float]:
     """``(e, NIS per channel at e)``: the model error at which the fleet's mean NIS per
-    channel is 1 (module docstring), within :data:`RTOL`, searched in :data:`SEARCH`; 0 when
-    the filter is consistent without one, the upper end when even that is not enough."""
+    channel is 1 (module docstring), within :data:`RTOL`; 0 when the filter is consistent
+    without one, the upper end of :data:`SEARCH` when even that is not enough. From the
+    lower end of :data:`SEARCH` the trial grows fourfold until the filter is consistent,
+    then ``log e`` is bisected. A trial at which every parameter is unobservable (the model
+    error drowns the data) counts as consistent: the answer lies below it."""
+    from engine_model.validation import InputError
+
     def nis(e: float) -> float:
-        v = fleet_nis(data, replace(setup, model_error=e), effects, units)
+        try:
+            v = fleet_nis(data, replace(setup, model_error=e), effects, units)
+        except InputError:
+            if e == 0.0:
+                raise
+            v = 0.0  # nothing observable: far on the consistent side
         if log:
             log(f"model error {e:.4g}: mean NIS per channel {v:.3g}")
         return v
@@ -74,17 +84,22 @@ def consistent_model_error(data, setup: CalibrationSetup, effects=(), units=None
     at0 = nis(0.0)
     if at0 <= 1.0:
         return 0.0, at0
-    lo, hi = SEARCH
-    v_lo, v_hi = nis(lo), nis(hi)
-    if v_lo <= 1.0:
-        return lo, v_lo
-    if v_hi > 1.0:
+    lo, (e, top) = None, SEARCH
+    while True:
+        v = nis(e)
+        if v <= 1.0:
+            hi, v_hi = e, v
+            break
+        if e >= top:
+            return e, v
+        lo, e = e, min(4.0 * e, top)
+    if lo is None:
         return hi, v_hi
     while hi / lo > 1.0 + RTOL:
         mid = float(np.sqrt(lo * hi))
         v = nis(mid)
         if v > 1.0:
-            lo, v_lo = mid, v
+            lo = mid
         else:
             hi, v_hi = mid, v
     return hi, v_hi  # the smallest tried at which the filter is consistent

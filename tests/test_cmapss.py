@@ -442,3 +442,32 @@ def test_data_noise_needs_an_operating_condition_label(runner, tmp_path):
                             "data", "--sensors", "T30,P2"])
     assert_user_error(r, "P2", "no noise to estimate", code=None)
     assert not (tmp_path / "f").exists()
+
+
+def test_the_pipeline_calibrates_with_the_datas_noise_and_a_consistent_model_error(runner,
+                                                                                    tmp_path):
+    """``[calibrate] noise = "data"``, ``model_error = "consistent"``: the pipeline's feature
+    table records the data's noise table and the model error the search found; a value that
+    is neither a number nor 'consistent' is a one-line error naming the table."""
+    from engine_model.datasets import read_metadata
+
+    train = write_lines(tmp_path / "train_FD002.txt", noisy_fd002_lines(units=4, cycles=12))
+    data = tmp_path / "fd002"
+    assert runner.invoke(app, ["data", "import-cmapss", str(train), "--out",
+                               str(data)]).exit_code == 0
+    config = tmp_path / "p.toml"
+    config.write_text('[data]\ndev_units = [1, 2, 3]\ntest_units = [4]\n'
+                      '[calibrate]\nnoise = "data"\nmodel_error = "consistent"\n'
+                      '[discover]\nenabled = false\n'
+                      '[train]\nmodel = "dcnn"\nwindow = 4\nepochs = 1\ninputs = ["hybrid"]\n')
+    out = tmp_path / "run"
+    r = runner.invoke(app, ["pipeline", str(data), "--config", str(config), "--out", str(out),
+                            "--quiet"])
+    assert r.exit_code == 0, r.output
+    features = next(out.glob("stages/calibrate-*/features"))
+    setup = read_metadata(features)["calibration"]["setup"]
+    assert setup["noise"] == "data" and setup["noise_table"] and setup["model_error"] > 0
+    config.write_text('[calibrate]\nmodel_error = "often"\n')
+    r = runner.invoke(app, ["pipeline", str(data), "--config", str(config), "--out",
+                            str(tmp_path / "never")])
+    assert_user_error(r, "[calibrate]", "'consistent'", code=None)

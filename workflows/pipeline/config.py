@@ -50,7 +50,13 @@ table            key                  meaning [default]
                  ``sensors``          measured channels [every x_s in the data]
                  ``drift``            random-walk std of theta per sqrt(hour) [0.01; the tiny
                                       fleet's ten-flight lives need it, README]
-                 ``noise_scale``      multiplier of the documented sensor noise [1.0]
+                 ``noise_scale``      multiplier of the noise std in R [1.0]
+                 ``noise``            ``"model"`` (the simulator's documented noise) or
+                                      ``"data"`` (each sensor's noise per operating condition
+                                      from the data; ``hyprog calibrate --noise``) [model]
+                 ``model_error``      the model's own error, a relative std added to the
+                                      noise, or ``"consistent"`` (``hyprog calibrate
+                                      --model-error``) [0.0]
                  ``prior_std``        prior std of theta [0.02]
                  ``model_effects``    an adapted model (``hyprog adapt --out FILE``): its
                                       effects are in the model of calibrate and discover;
@@ -151,6 +157,8 @@ SCHEMA: dict[str, dict[str, tuple]] = {
     "calibrate": {"method": (_STR, "ukf"), "params": (_NAMES, None),
                   "sensors": (_NAMES, None), "drift": (_FLOAT, 0.01),
                   "noise_scale": (_FLOAT, _SETUP.noise_scale),
+                  "noise": (_STR, _SETUP.noise),
+                  "model_error": ((_STR, _FLOAT), _SETUP.model_error),
                   "prior_std": (_FLOAT, _SETUP.prior_std), "model_effects": (_STR, "")},
     "discover": {"enabled": (_BOOL, True), "method": (_STR, "ukf"),
                  "candidates": (_NAMES, None), "alpha": (_FLOAT, 0.01),
@@ -237,9 +245,15 @@ def check_values(config: dict, source: str = "config") -> None:
 
 
 def calibration_setup(config: dict):
-    """The :class:`~calibration.CalibrationSetup` of the ``calibrate`` table."""
+    """The :class:`~calibration.CalibrationSetup` of the ``calibrate`` table (with
+    ``model_error = "consistent"`` its model error is 0 here: the calibrate stage finds it,
+    :func:`calibration.consistency.consistent_model_error`)."""
     c = config["calibrate"]
-    kw = {"drift": c["drift"], "noise_scale": c["noise_scale"], "prior_std": c["prior_std"]}
+    me = c["model_error"]
+    if isinstance(me, str) and me != "consistent":
+        raise InputError(f"model_error must be a number or 'consistent', got {me!r}")
+    kw = {"drift": c["drift"], "noise_scale": c["noise_scale"], "prior_std": c["prior_std"],
+          "noise": c["noise"], "model_error": 0.0 if me == "consistent" else me}
     if c["params"] is not None:
         kw["params"] = tuple(c["params"])
     if c["sensors"] is not None:

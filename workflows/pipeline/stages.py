@@ -214,10 +214,24 @@ def _calibrate_into(ctx: Context, table: Path, data: Path, effects=()):
         def progress(done, total):
             ctx.log(f"  calibrated {done} of {total} unit(s)")
     adapted = ctx.adapted
-    return calibrate_fleet(data, c["method"], calibration_setup(ctx.config), {},
+    setup = calibration_setup(ctx.config)
+    effects = [*(adapted.effects if adapted else ()), *effects]
+    if c["model_error"] == "consistent":
+        from dataclasses import replace
+
+        from calibration.calibrate_fleet import with_data_noise
+        from calibration.consistency import consistent_model_error
+
+        if setup.noise == "data":
+            setup = with_data_noise(setup, data, str(data))
+        e, nis = consistent_model_error(data, setup, effects, ctx.config["data"]["units"])
+        if not ctx.quiet:
+            ctx.log(f"  model error {e:.4g}: mean NIS per channel {nis:.3g}")
+        setup = replace(setup, model_error=e)
+    return calibrate_fleet(data, c["method"], setup, {},
                            ctx.config["data"]["units"], ctx.jobs, ctx.cluster, table,
                            keep_results=False, progress=progress,
-                           effects=[*(adapted.effects if adapted else ()), *effects],
+                           effects=effects,
                            model_source=adapted.provenance() if adapted else None)
 
 
