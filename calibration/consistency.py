@@ -11,14 +11,15 @@ engine, and a filter told only of the sensor noise trusts the model too much: on
 
 :func:`consistent_model_error` finds the model error ``e`` (a relative std added to the noise
 in quadrature, :func:`calibration.measurement_noise.with_model_error`) at which that mean is
-1: the fleet is calibrated at trial values of ``e`` and ``log e`` bisected, since the mean NIS
-falls as ``e`` grows (each trial is a whole calibration: about 15 s for FD002's 17,000
-samples on one core). When the filter is consistent without it, ``e = 0``.
+1: the fleet is calibrated at trial values of ``e``, grown fourfold from ``1e-4`` until the
+filter is consistent and then bisected in ``log e``, since the mean NIS falls as ``e`` grows
+(each trial is a whole calibration: about 15 s for FD002's 17,000 samples on one core, a
+search of about ten). When the filter is consistent without it, ``e = 0``.
 
 What it cannot do: the model's mismatch on C-MAPSS is a bias per operating condition, not
 white noise, so a consistent white ``R`` can be too large for the wear to show: with the model
-as designed FD002 needs about 1.6 %, at which the HPT and LPT efficiencies stop following the
-wear; adapted to the fleet (``hyprog adapt``) it needs about 0.6 % and theta_hat still follows
+as designed FD002 needs about 1.7 %, at which the HPT and LPT efficiencies stop following the
+wear; adapted to the fleet (``hyprog adapt``) it needs about 0.7 % and theta_hat still follows
 it (docs/calibration.md). The condition-dependent error belongs in the model; this is what is
 left of it.
 """
