@@ -21,7 +21,11 @@ it changes: the model's error per condition, the health of new engines, FD001's 
 4. ``hyprog discover`` on the 85 FD002 engines' first 40 cycles (3,400 samples), with the
    unadapted and the adapted model: wall time, verdict and what it adds.
 
-Every figure is printed as a table and, with ``--results``, written there.
+Every figure is printed as a table and, with ``--results``, written there. ``--noise`` and
+``--model-error`` are ``hyprog calibrate``'s, for the calibrations of sections 2 and 3
+(e.g. ``--noise data --model-error consistent``: measured data's own noise and the model
+error at which the filter is consistent). An adapted model already at ``--work``'s
+``fd002-adapted.json`` is used as it is (no ``hyprog adapt``).
 """
 
 from __future__ import annotations
@@ -55,10 +59,13 @@ def imported(data_dir: Path, work: Path, subset: str) -> Path:
 
 
 def calibrated(raw: Path, work: Path, tag: str, params=None, adapted: Path | None = None,
-               units: str | None = None) -> Path:
-    out = work / f"{raw.name}-{tag}"
+               units: str | None = None, noise: tuple = ()) -> Path:
+    """``raw`` calibrated into ``work`` (once) with the UKF, ``params``, the adapted model,
+    ``units`` and ``noise`` (``hyprog calibrate``'s ``--noise`` / ``--model-error``
+    options, which name the folder too)."""
+    out = work / (f"{raw.name}-{tag}" + "".join(f"-{a.lstrip('-')}" for a in noise))
     if not out.exists():
-        args = ["calibrate", str(raw), "--out", str(out)]
+        args = ["calibrate", str(raw), "--out", str(out), *noise]
         if params:
             args += ["--params", ",".join(params)]
         if adapted is not None:
@@ -148,7 +155,14 @@ def main(argv=None) -> int:
     ap.add_argument("--data-dir", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/adaptation"))
     ap.add_argument("--results", type=Path, default=None)
+    ap.add_argument("--noise", choices=("model", "data"), default="model",
+                    help="hyprog calibrate --noise for sections 2 and 3")
+    ap.add_argument("--model-error", default="0",
+                    help="hyprog calibrate --model-error for sections 2 and 3 (a number or "
+                    "'consistent')")
     args = ap.parse_args(argv)
+    noise = (() if args.noise == "model" else ("--noise", args.noise)) + (
+        () if args.model_error in ("0", "0.0") else ("--model-error", args.model_error))
     args.work.mkdir(parents=True, exist_ok=True)
     report = []
 
@@ -164,11 +178,13 @@ def main(argv=None) -> int:
                f"{rec['data']['units']} engines, {rec['data']['samples']} samples, "
                f"{rec['seconds']:.0f} s.", "", error_tables(rec), ""]
 
-    report += ["## 2. Early-life health of the FD002 engines [%]", ""]
+    report += ["## 2. Early-life health of the FD002 engines [%]", "",
+               f"Calibrated with {' '.join(noise) or 'the simulator noise'} (sections 2, 3).",
+               ""]
     for params, label in ((None, "default parameters"), (FIVE, "the five of FD001")):
         tag = "default" if params is None else "five"
         for model, path in (("unadapted", None), ("adapted", adapted)):
-            feat = calibrated(fd002, args.work, f"{tag}-{model}", params, path)
+            feat = calibrated(fd002, args.work, f"{tag}-{model}", params, path, noise=noise)
             tab = early_life_theta(feat)
             report += [f"{label}, {model} model:", "", markdown(tab), ""]
 
@@ -178,7 +194,7 @@ def main(argv=None) -> int:
     rows = {}
     for model, path in (("unadapted", None), ("adapted", adapted)):
         feat = calibrated(fd001, args.work, f"five-{model}", FIVE, path,
-                          ",".join(map(str, range(1, 21))))
+                          ",".join(map(str, range(1, 21))), noise)
         rows[model] = change_over_life(feat)
     tab = pd.DataFrame(rows).T
     hpc = tab[["HPC_eff_mod", "HPC_flow_mod"]].abs().min(axis=1)
