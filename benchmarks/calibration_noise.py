@@ -72,14 +72,16 @@ def measure(raw: Path, noise: str, model_error: float | str,
         from calibration.adaptation import load_adapted
         effects = load_adapted(adapted).effects
     t0 = time.perf_counter()
-    chosen = model_error
+    chosen, setup = model_error, CalibrationSetup(noise=noise)
     if model_error == "consistent":
-        from calibration.consistency import consistent_model_error
-        model_error, _ = consistent_model_error(raw, CalibrationSetup(noise=noise), effects)
+        from calibration.consistency import with_consistent_model_error
+        setup, _ = with_consistent_model_error(setup, raw, effects)
+    else:
+        setup = CalibrationSetup(noise=noise, model_error=model_error)
+    model_error = setup.model_error
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnobservableWarning)
-        run = calibrate_fleet(raw, "ukf", CalibrationSetup(noise=noise, model_error=model_error),
-                              check_data=False, effects=effects)
+        run = calibrate_fleet(raw, "ukf", setup, check_data=False, effects=effects)
     seconds = time.perf_counter() - t0
     res = list(run.results.values())
     n = np.array([r.diagnostics["n_samples"] - r.diagnostics["n_nonconverged"] for r in res])

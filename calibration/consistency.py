@@ -30,6 +30,7 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
+import pandas as pd
 
 from .estimation_setup import CalibrationSetup
 
@@ -104,3 +105,18 @@ def consistent_model_error(data, setup: CalibrationSetup, effects=(), units=None
         else:
             hi, v_hi = mid, v
     return hi, v_hi  # the smallest tried at which the filter is consistent
+
+
+def with_consistent_model_error(setup: CalibrationSetup, data, effects=(), units=None,
+                                log=None) -> tuple[CalibrationSetup, float]:
+    """``(setup with the consistent model error, NIS per channel there)``: the data's noise
+    table first when ``setup.noise == "data"`` (every trial uses the same), then
+    :func:`consistent_model_error` (``hyprog calibrate --model-error consistent`` and the
+    pipeline's ``model_error = "consistent"``)."""
+    from .calibrate_fleet import with_data_noise
+
+    if setup.noise == "data" and not setup.noise_table:
+        setup = with_data_noise(setup, data, None if isinstance(data, pd.DataFrame)
+                                else str(data))
+    e, nis = consistent_model_error(data, setup, effects, units, log)
+    return replace(setup, model_error=e), nis

@@ -160,16 +160,13 @@ def run(
         if model_effects is not None:
             from calibration.adaptation import load_adapted
             adapted = load_adapted(model_effects)
-        if setup.noise == "data":  # before the estimates below, which need it
-            setup = with_data_noise(setup, data, str(data))
         if model_error == "consistent":
-            from dataclasses import replace
-
-            from calibration.consistency import consistent_model_error
-            e, _ = consistent_model_error(
-                data, setup, adapted.effects if adapted else (), unit_list,
+            from calibration.consistency import with_consistent_model_error
+            setup, _ = with_consistent_model_error(
+                setup, data, adapted.effects if adapted else (), unit_list,
                 log=None if (as_json or quiet) else lambda m: console().print(m))
-            setup = replace(setup, model_error=e)
+        elif setup.noise == "data":  # before the drift's estimate, which needs it
+            setup = with_data_noise(setup, data, str(data))
         setup = setup_with_drift_mle(drift, data, setup, unit_list)
         with progress_bar(f"calibrating ({method})", as_json or quiet) as update:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,

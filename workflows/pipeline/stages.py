@@ -217,17 +217,12 @@ def _calibrate_into(ctx: Context, table: Path, data: Path, effects=()):
     setup = calibration_setup(ctx.config)
     effects = [*(adapted.effects if adapted else ()), *effects]
     if c["model_error"] == "consistent":
-        from dataclasses import replace
+        from calibration.consistency import with_consistent_model_error
 
-        from calibration.calibrate_fleet import with_data_noise
-        from calibration.consistency import consistent_model_error
-
-        if setup.noise == "data":
-            setup = with_data_noise(setup, data, str(data))
-        e, nis = consistent_model_error(data, setup, effects, ctx.config["data"]["units"])
+        setup, nis = with_consistent_model_error(setup, data, effects,
+                                                 ctx.config["data"]["units"])
         if not ctx.quiet:
-            ctx.log(f"  model error {e:.4g}: mean NIS per channel {nis:.3g}")
-        setup = replace(setup, model_error=e)
+            ctx.log(f"  model error {setup.model_error:.4g}: mean NIS per channel {nis:.3g}")
     return calibrate_fleet(data, c["method"], setup, {},
                            ctx.config["data"]["units"], ctx.jobs, ctx.cluster, table,
                            keep_results=False, progress=progress,
