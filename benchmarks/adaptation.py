@@ -22,10 +22,12 @@ it changes: the model's error per condition, the health of new engines, FD001's 
    unadapted and the adapted model: wall time, verdict and what it adds.
 
 Every figure is printed as a table and, with ``--results``, written there. ``--noise`` and
-``--model-error`` are ``hyprog calibrate``'s, for the calibrations of sections 2 and 3
-(e.g. ``--noise data --model-error consistent``: measured data's own noise and the model
-error at which the filter is consistent). An adapted model already at ``--work``'s
-``fd002-adapted.json`` is used as it is (no ``hyprog adapt``).
+``--model-error`` are ``hyprog calibrate``'s, for the calibrations of sections 2 and 3; by
+default ``--noise data --model-error consistent``, how measured data are calibrated (the
+data's own noise and the model error at which the filter is consistent:
+calibration.consistency); ``--noise model --model-error 0`` gives the simulator's noise.
+An adapted model already at ``--work``'s ``fd002-adapted.json`` is used as it is (no
+``hyprog adapt``).
 """
 
 from __future__ import annotations
@@ -155,9 +157,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data-dir", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/adaptation"))
     ap.add_argument("--results", type=Path, default=None)
-    ap.add_argument("--noise", choices=("model", "data"), default="model",
+    ap.add_argument("--noise", choices=("model", "data"), default="data",
                     help="hyprog calibrate --noise for sections 2 and 3")
-    ap.add_argument("--model-error", default="0",
+    ap.add_argument("--model-error", default="consistent",
                     help="hyprog calibrate --model-error for sections 2 and 3 (a number or "
                     "'consistent')")
     args = ap.parse_args(argv)

@@ -183,6 +183,22 @@ def floors(df, fold, held, hi_fn) -> dict:
     return out
 
 
+def unobservable_somewhere(df, subset: str):
+    """``df`` with every health-parameter estimate that the calibration found unobservable in
+    some unit (NaN in some rows) set to NaN in every row, so that the networks leave it out
+    (prognostics.features.unobservable_columns): a network cannot read a parameter that one
+    unit has and another lacks, and which units lack it is not known before calibration."""
+    from engine_model.channels import THETA_NAMES
+
+    cols = [q + "_hat" for q in THETA_NAMES if q + "_hat" in df.columns]
+    part = [c for c in cols if df[c].isna().any() and not df[c].isna().all()]
+    if part:
+        print(f"{subset}: left out, unobservable in some units: "
+              f"{', '.join(c[:-4] for c in part)}", file=sys.stderr)
+        df = df.assign(**{c: np.nan for c in part})
+    return df
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data-dir", type=Path, required=True)
@@ -192,8 +208,8 @@ def main(argv=None) -> int:
     ap.add_argument("--inputs", default="data-driven,hybrid")
     ap.add_argument("--params", default="default",
                     help="the health parameters calibrated for the hybrid inputs (hyprog "
-                    "calibrate --params): 'default' or 'all' (those found unobservable in every "
-                    "unit are left out, prognostics.features.unobservable_columns)")
+                    "calibrate --params): 'default' or 'all' (those found unobservable in any "
+                    "unit are left out: unobservable_somewhere)")
     ap.add_argument("--model-effects", type=Path, default=None,
                     help="an adapted model (hyprog adapt) for the calibration of the hybrid "
                     "inputs (a separate features folder; runs labelled 'adapted')")
@@ -242,6 +258,7 @@ def main(argv=None) -> int:
         feat = prepare_subset(args.data_dir, args.work, subset, args.params, args.model_effects,
                               args.noise, args.model_error)
         df, meta = read_dataset(feat)
+        df = unobservable_somewhere(df, subset)
         units = sorted(df["unit"].unique().tolist())
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
         hi_fn = None

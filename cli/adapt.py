@@ -39,7 +39,8 @@ def adapt(
     = 0,
     model_error: Annotated[float, typer.Option(
         "--model-error", help="The model's own error, a relative std added to each sample's "
-        "noise (default 0: the noise alone).", min=0.0)] = 0.0,
+        "noise (default 0.001, calibration.adaptation.data.MODEL_ERROR; 0: the noise alone).",
+        min=0.0)] = 0.001,
     as_json: Annotated[bool, typer.Option("--json", help="Print the record as JSON.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,

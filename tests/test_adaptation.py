@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from calibration.adaptation import adapt, load_adapted, write_adapted
-from calibration.adaptation.data import fleet_data
+from calibration.adaptation.data import MODEL_ERROR, fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
 from calibration.adaptation.selection import MIN_GAIN, OutOfSample, enters, shared_of
@@ -108,13 +108,18 @@ def test_each_samples_std_adds_the_models_own_error_to_the_noise():
     np.testing.assert_allclose(both.sigma ** 2, noise_only.sigma ** 2 + (0.002 * level) ** 2)
     with pytest.raises(InputError, match="model error"):
         fleet_data(df, CHANNELS, model_error=-0.01)
+    # measured data get the model's own error by default (0.1 %); a simulated fleet has none
+    default, _ = fleet_data(df, CHANNELS)
+    np.testing.assert_allclose(default.sigma ** 2,
+                               noise_only.sigma ** 2 + (MODEL_ERROR * level) ** 2)
+    assert MODEL_ERROR == 0.001
 
 
 def test_fleet_fit_separates_the_shared_level_from_each_engines_health(candidate_model):
     """A fleet whose HPC efficiency is 1.5 % low in every engine: the shared design scaling
     takes the offset, the engines' own health stays near zero on average."""
     df = simulated_fleet(["design_scaling:component=HPC,eff=-0.015"], units=10, seed=2)
-    data, _ = fleet_data(df, CHANNELS)
+    data, _ = fleet_data(df, CHANNELS, model_error=0.0)
     groups = build_groups(CHANNELS, CANDIDATES)
     sh = shared_of(groups, ["design_scaling_HPC"])
     fit = fit_fleet(candidate_model, data, sh)
@@ -141,7 +146,8 @@ def test_a_candidate_enters_on_the_out_of_sample_gain_and_the_worst_condition_is
 
 def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
         candidate_model, shaped):
-    res = adapt(shaped, CHANNELS, CANDIDATES, model=candidate_model)
+    res = adapt(shaped, CHANNELS, CANDIDATES, model=candidate_model,
+                model_error=0.0)
     sel = res.selection
     added = [c for c in sel.chosen if not c.startswith("design_scaling")]  # levels: always
     assert added and added[0] == "map_scaling_HPC"
@@ -167,7 +173,8 @@ def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not
     names = ("design_scaling", "map_slope", "nozzle_area")
     fleet = simulated_fleet(["map_slope:component=fan,slope=-0.4"], units=8, cycles=12,
                             seed=11)
-    res = adapt(fleet, CHANNELS, names, model=CandidateModel(build_groups(CHANNELS, names)))
+    res = adapt(fleet, CHANNELS, names, model=CandidateModel(build_groups(CHANNELS, names)),
+                model_error=0.0)
     sel = res.selection
     added = [c for c in sel.chosen if not c.startswith("design_scaling")]
     assert added and added[0] == "map_slope_fan", sel.chosen
@@ -178,7 +185,8 @@ def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not
 
 
 def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_model):
-    res = adapt(simulated_fleet(seed=7), CHANNELS, CANDIDATES, model=candidate_model)
+    res = adapt(simulated_fleet(seed=7), CHANNELS, CANDIDATES, model=candidate_model,
+                model_error=0.0)
     assert all(c.startswith("design_scaling") for c in res.selection.chosen)
     # the levels, always fitted, are zero within their uncertainty
     for p in res.record()["parameters"]:
@@ -187,7 +195,8 @@ def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_mode
 
 def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candidate_model,
                                                                  shaped):
-    res = adapt(shaped.iloc[: 12 * 18 // 2], CHANNELS, CANDIDATES, model=candidate_model)
+    res = adapt(shaped.iloc[: 12 * 18 // 2], CHANNELS, CANDIDATES, model=candidate_model,
+                model_error=0.0)
     out = write_adapted(res.record(), tmp_path / "adapted.json")
     loaded = load_adapted(out)
     assert loaded.effects == res.effects()
