@@ -86,7 +86,8 @@ import pandas as pd
 
 from engine_model import datasets, runtime
 from engine_model.datasets.fingerprint import rows_fingerprint
-from engine_model.runtime.cluster import executor, process_model
+from engine_model.runtime.cluster import executor
+from engine_model.runtime.shared_model import process_model
 from engine_model.validation import InputError
 
 from .base import estimator_class
@@ -190,9 +191,10 @@ def effect_specs(effects) -> list[str]:
 # ----------------------------------------------------------------------------- workers
 def worker_model(threads: int | None, effects: Sequence[str] = ()):
     """The compiled model of this process for ``effects`` (canonical specifications, held at
-    their values), built once per process (:func:`engine_model.runtime.cluster.process_model`): the
-    process-wide default model when there are no effects and ``threads`` is None, else a
-    ``threads``-threaded variant (single-threaded in a worker)."""
+    their values), built once per process
+    (:func:`engine_model.runtime.shared_model.process_model`): the process-wide default model
+    when there are no effects and ``threads`` is None, else a ``threads``-threaded variant
+    (single-threaded in a worker)."""
     return process_model(effects, threads)
 
 

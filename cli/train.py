@@ -20,8 +20,9 @@ from cli.common import (
 from prognostics.choices import MODEL_KINDS, NORMALISATIONS, SCHEDULES, VALIDATIONS
 
 INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
-               "trend also physics, hybrid-health), groups joined by '+' (w, xs, xs_hat, xv, "
-               "xv_hat, theta_hat, theta; health, theta_rel, health_true for tcn and trend), "
+               "trend, or any model on a table with one row per cycle such as C-MAPSS, also "
+               "physics, hybrid-health), groups joined by '+' (w, xs, xs_hat, xv, xv_hat, "
+               "theta_hat, theta, cmapss; health, theta_rel, mode, health_true likewise), "
                "explicit columns (alt,Mach,...), or a set plus columns (hybrid+Ps30,phi).")
 
 

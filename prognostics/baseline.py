@@ -164,11 +164,22 @@ def baseline_predictions(df: pd.DataFrame, hi_fn: Callable[[np.ndarray], np.ndar
                           how="left").reset_index(drop=True)
 
 
-def engine_health_index():
-    """``HealthIndex`` of the process-wide default engine model
-    (:func:`engine_model.runtime.shared_model.default_model`: built, or loaded from the C cache,
-    once)."""
+def engine_health_index(effects: Sequence[str] = ()):
+    """``HealthIndex`` of the engine model with ``effects`` (specification strings: those of an
+    adapted model, :func:`health_effects`), built once per process
+    (:func:`engine_model.runtime.shared_model.process_model`); without effects, the process-wide
+    default model (built, or loaded from the C cache, once)."""
     from engine_model.physics.health_index import HealthIndex
-    from engine_model.runtime.shared_model import default_model
+    from engine_model.runtime.shared_model import process_model
 
-    return HealthIndex(default_model())
+    return HealthIndex(process_model(tuple(effects)))
+
+
+def health_effects(metadata: dict | None) -> tuple[str, ...]:
+    """The effects of the engine model that θ̂ was calibrated with: a feature table's
+    metadata ``calibration.effects`` (``hyprog calibrate --model-effects``: an adapted
+    model's), ``()`` for the model as designed. θ̂ is a deviation from that model, so its
+    health index is evaluated with it: with the designed model, an adapted model's new engine
+    (θ̂ = 0) would not read HI = 1."""
+    cal = (metadata or {}).get("calibration") or {}
+    return tuple(str(e) for e in cal.get("effects") or ())

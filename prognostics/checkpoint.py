@@ -100,6 +100,7 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
             "config": model.config.to_dict(), "columns": list(model.columns),
             "scaler": model.scaler.to_dict(),
             "dropped_constant": list(model.info.get("dropped_constant", [])),
+            "health_effects": list(model.info.get("health_effects", [])),
             "conformal": None if model.conformal is None else model.conformal.to_dict(),
             "members": members}
     body["sha256"] = sha256_bytes(_canonical(body))
@@ -244,6 +245,7 @@ def load_model(path: str | os.PathLike) -> RulModel:
         columns = tuple(str(c) for c in body["columns"])
         scaler = scaler_from_dict(body["scaler"])
         dropped = [str(c) for c in body.get("dropped_constant", [])]
+        effects = [str(e) for e in body.get("health_effects", [])]
         conformal = None if body["conformal"] is None else \
             SplitConformal.from_dict(body["conformal"])
         entries = list(body["members"])
@@ -257,6 +259,6 @@ def load_model(path: str | os.PathLike) -> RulModel:
     _check_shapes(p / MANIFEST, config, len(columns), members)
     model = RulModel(config, columns, scaler, members, conformal,
                      info={"hyprog_version": version, "path": str(p),
-                           "dropped_constant": dropped})
+                           "dropped_constant": dropped, "health_effects": effects})
     model.networks()  # weights must fit the recorded network
     return model

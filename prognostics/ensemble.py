@@ -54,11 +54,11 @@ from .train_config import TrainConfig
 from .training import (
     Member,
     deterministic,
-    flight_frame,
     predict_windows,
     prepare,
     progress_bar,
     resolve_device,
+    rows_for,
     train_member,
 )
 from .windows import make_windows
@@ -108,8 +108,7 @@ class RulModel:
             raise InputError(f"{source}: no rows to predict")
         frame = samples = sort_table(df)
         cfg = self.config
-        if cfg.per_flight:
-            frame = flight_frame(samples, source)
+        frame = rows_for(cfg, samples, self.info.get("health_effects", ()), source)
         missing = [c for c in self.columns if c not in frame.columns]
         if missing:
             raise InputError(f"{source}: missing input column(s) {', '.join(missing)} that the "
@@ -192,7 +191,8 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         with progress_bar(len(prep.windows[TRAIN]), label, quiet) as (on_batch, on_epoch):
             members.append(train_member(prep, s, device, on_batch, on_epoch))
     model = RulModel(cfg, tuple(prep.columns), prep.scaler, members,
-                     info={"dropped_constant": list(prep.dropped)})
+                     info={"dropped_constant": list(prep.dropped),
+                           "health_effects": list(prep.health_effects)})
     conf = prep.windows.get(CONFORMAL)
     if conf is not None and len(conf):
         with deterministic(device):

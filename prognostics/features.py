@@ -97,6 +97,19 @@ INPUT_SETS: dict[str, tuple[str, ...]] = {
 }
 
 
+def health_groups_of(spec: str) -> list[str]:
+    """The groups of :data:`HEALTH_GROUPS` that the input specification ``spec`` names,
+    directly or through a set of :data:`INPUT_SETS` (columns of a flight table: they are
+    computed from θ̂ by :func:`prognostics.flights.flight_table`, not written by
+    ``hyprog calibrate``)."""
+    out: list[str] = []
+    for term in (t.strip() for t in spec.split("+")):
+        for g in INPUT_SETS.get(term, (term,)):
+            if g in HEALTH_GROUPS and g not in out:
+                out.append(g)
+    return out
+
+
 def unobservable_columns(df: pd.DataFrame) -> list[str]:
     """The ``<q>_hat`` health-parameter columns of ``df`` that are NaN in every row (the
     calibration found ``q`` unobservable in every unit; module docstring)."""
@@ -156,9 +169,12 @@ def resolve_inputs(spec: str, columns: Sequence[str], source: str = "table",
             for g in groups:
                 cols = group_columns(g, columns, unobservable)
                 if not cols:
-                    hint = " (run hyprog calibrate first)" if g.endswith("_hat") else \
-                        " (computed in flight tables: the models tcn and trend)" \
-                        if g in HEALTH_GROUPS else ""
+                    hint = ""
+                    if g.endswith("_hat"):
+                        hint = " (run hyprog calibrate first)"
+                    elif g in HEALTH_GROUPS:
+                        hint = (" (computed in flight tables: the models tcn and trend, or any "
+                                "model on a table with one row per cycle)")
                     raise InputError(f"{source}: inputs {term!r} need the {g} columns, and the "
                                      f"table has none{hint}")
                 out += cols

@@ -108,6 +108,17 @@ class TrainConfig:
         """The model reads a flight table (:data:`FLIGHT_MODELS`)."""
         return self.model in FLIGHT_MODELS
 
+    @property
+    def reads_flights(self) -> bool:
+        """Training and prediction build the flight table of the rows
+        (:func:`prognostics.training.flight_frame`): a flight model, or inputs that name a
+        health group (:func:`prognostics.features.health_groups_of`; a sample model reads
+        them on a table with one row per cycle, such as C-MAPSS, whose flight table has the
+        same rows)."""
+        from .features import health_groups_of
+
+        return self.per_flight or bool(health_groups_of(self.inputs))
+
     def resolved(self) -> TrainConfig:
         """The window filled in and values checked; the size rules (epochs, batch size,
         patience, validation) stay None / "auto" until :meth:`sized`."""

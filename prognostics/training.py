@@ -17,10 +17,12 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
    condition (:func:`training_conditions`) (:attr:`Prepared.dropped`);
 3. windows inside each unit-and-role segment (:mod:`.windows`; the flight models of
    :mod:`.train_config` read the flight table of the rows, :func:`flight_frame`, with every
-   flight ending a window), target ``min(RUL, max_rul)`` (minus the physics trend for the
-   ``trend`` model, :func:`.baseline.trend_per_flight`) at the window's last row
-   (``max_rul`` None: no cap, the paper's setting); the size rules of :mod:`.train_config`
-   fill in the batch size, epochs and patience from the number of training windows;
+   flight ending a window, and so does a sample model whose inputs name a health group, on a
+   table with one row per cycle: :func:`rows_for`), target ``min(RUL, max_rul)`` (minus the
+   physics trend for the ``trend`` model, :func:`.baseline.trend_per_flight`) at the window's
+   last row (``max_rul`` None: no cap, the paper's setting); the size rules of
+   :mod:`.train_config` fill in the batch size, epochs and patience from the number of
+   training windows;
 4. per seed: initialise, train (learning rate held, or cut tenfold on a validation plateau),
    early-stop, restore the best epoch;
 5. with conformal units: the ensemble mean on their windows calibrates a split-conformal
@@ -42,7 +44,7 @@ from __future__ import annotations
 import copy
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
@@ -54,8 +56,16 @@ from torch import nn
 from engine_model.channels import THETA_NAMES, W_NAMES
 from engine_model.validation import InputError
 
-from .baseline import trend_per_flight
-from .features import TARGET, check_table, resolve_inputs, sort_table, unobservable_columns
+from .baseline import health_effects, trend_per_flight
+from .features import (
+    TARGET,
+    check_table,
+    health_groups_of,
+    resolve_inputs,
+    sort_table,
+    unobservable_columns,
+)
+from .flights import one_per_cycle
 from .floors import unit_lives
 from .models import build_model, parameter_count
 from .scaling import CONDITION, Scaler, fit_scaler
@@ -100,6 +110,7 @@ class Prepared:
     test_units: list[int]
     dropped: list[str] = field(default_factory=list)  # constant input columns left out
     offset: np.ndarray | None = None  # the trend model's offset per row of ``frame``
+    health_effects: tuple[str, ...] = ()  # the engine model of the health coordinates
 
 
 def resolve_device(name: str) -> torch.device:
@@ -130,17 +141,35 @@ def deterministic(device: torch.device) -> Iterator[None]:
         torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = cudnn
 
 
-def flight_frame(df: pd.DataFrame, source: str = "table") -> pd.DataFrame:
+def flight_frame(df: pd.DataFrame, source: str = "table",
+                 effects: Sequence[str] = ()) -> pd.DataFrame:
     """The flight table of ``df`` (:func:`prognostics.flights.flight_table`), with the health
-    coordinates of the default engine model when ``df`` has ``<q>_hat`` columns."""
+    coordinates when ``df`` has ``<q>_hat`` columns, evaluated with the engine model that θ̂
+    was calibrated with (``effects``: :func:`.baseline.health_effects` of the table's
+    metadata; none: the model as designed)."""
     from .flights import flight_table
 
     hi = None
     if any(q + "_hat" in df.columns for q in THETA_NAMES):
         from .baseline import engine_health_index
 
-        hi = engine_health_index()
+        hi = engine_health_index(effects)
     return flight_table(df, hi, source=source)
+
+
+def rows_for(config: TrainConfig, frame: pd.DataFrame, effects: Sequence[str],
+             source: str = "table") -> pd.DataFrame:
+    """The rows a model of ``config`` reads from the sorted table ``frame``: its flight table
+    when :attr:`TrainConfig.reads_flights` (a sample model asking for health coordinates
+    needs one row per cycle, where the flight table has the same rows), else ``frame``."""
+    if not config.reads_flights:
+        return frame
+    if not config.per_flight and not one_per_cycle(frame):
+        groups = ", ".join(health_groups_of(config.inputs))
+        raise InputError(f"{source}: inputs {config.inputs!r} name {groups}, computed per "
+                         f"flight; the model {config.model} reads samples, and the table has "
+                         "several rows per cycle (use the flight models tcn or trend)")
+    return flight_frame(frame, source, effects)
 
 
 def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
@@ -153,8 +182,8 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
     every_unit = set(present) <= set(dev)  # no copy of the table when it is all development
     frame = sort_table(df if every_unit else df[df["unit"].isin(dev)])
-    if cfg.per_flight:
-        frame = flight_frame(frame, source)
+    effects = health_effects(metadata)
+    frame = rows_for(cfg, frame, effects, source)
     columns = resolve_inputs(cfg.inputs, list(frame.columns), source,
                              unobservable_columns(frame))
     check_table(frame, columns, source)
@@ -215,7 +244,7 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     cfg = cfg.sized(0 if train is None else len(train), n_fit)
     keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]
     return Prepared(cfg, columns, scaler, frame[keep], roles, windows, dev, test, dropped,
-                    offset)
+                    offset, effects if cfg.reads_flights else ())
 
 
 def training_conditions(frame: pd.DataFrame, rows: np.ndarray) -> tuple[int, ...]:

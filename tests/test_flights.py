@@ -123,7 +123,7 @@ def test_windows_padded_at_every_row():
 def _fake_hi(monkeypatch):
     import prognostics.baseline as baseline
 
-    monkeypatch.setattr(baseline, "engine_health_index", lambda: LinearHI())
+    monkeypatch.setattr(baseline, "engine_health_index", lambda effects=(): LinearHI())
 
 
 @pytest.mark.parametrize("model", ["tcn", "trend"])
@@ -154,10 +154,66 @@ def test_flight_models_train_predict_and_stay_causal(make_features, monkeypatch,
     pd.testing.assert_frame_equal(again.predict(test), pred)
 
 
-def test_health_groups_need_a_flight_model(make_features):
+def test_health_groups_need_a_flight_model_on_a_table_of_samples(make_features):
     df, meta = make_features()
-    with pytest.raises(InputError, match="flight tables"):
+    with pytest.raises(InputError, match="several rows per cycle .*tcn or trend"):
         fit(df, meta, TrainConfig(model="fnn", inputs="physics", epochs=1))
+
+
+def test_a_sample_model_reads_health_coordinates_on_a_table_of_one_row_per_cycle(
+        make_features, monkeypatch, tmp_path):
+    """C-MAPSS has one row per cycle, so its flight table has the same rows: a sample model
+    (the DCNN) reads θ̂ relative to early life and the health index there, evaluated with the
+    engine model θ̂ was calibrated with (the metadata's effects), kept with the model."""
+    import prognostics.baseline as baseline
+    from prognostics.checkpoint import load_model, save_model
+
+    asked = []
+
+    def hi_of(effects=()):
+        asked.append(tuple(effects))
+        return LinearHI()
+
+    monkeypatch.setattr(baseline, "engine_health_index", hi_of)
+    df, meta = make_features(samples=(1, 1))
+    effects = ["design_scaling:component=HPC,eff=-0.01,flow=0"]
+    meta = {**meta, "calibration": {"effects": effects}}
+    cfg = TrainConfig(model="cnn", inputs="w+xs+theta_hat+theta_rel", window=5, epochs=3,
+                      device="cpu")
+    m = fit(df, meta, cfg)
+    assert not m.config.per_flight and m.config.reads_flights
+    assert "HI_hat_rel" in m.columns and "HPT_eff_mod_hat_rel" in m.columns
+    assert asked and set(asked) == {tuple(effects)}
+    test = df[df.unit.isin(meta["test_units"])]
+    pred = m.predict(test)
+    assert len(pred) == len(test) - len(meta["test_units"]) * (cfg.window - 1)
+    # causal: unit 5 cut after cycle 12 keeps its predictions up to there
+    cut = m.predict(test[(test.unit != 5) | (test.cycle <= 12)])
+    a = pred[(pred.unit == 5) & (pred.cycle <= 12)]["RUL_pred"].to_numpy()
+    np.testing.assert_allclose(cut[cut.unit == 5]["RUL_pred"].to_numpy(), a, atol=1e-9)
+    save_model(m, tmp_path / "m")
+    again = load_model(tmp_path / "m")
+    assert again.info["health_effects"] == effects
+    asked.clear()
+    pd.testing.assert_frame_equal(again.predict(test), pred)
+    assert set(asked) == {tuple(effects)}
+
+
+def test_health_index_of_an_adapted_model_reads_one_for_its_new_engine():
+    """θ̂ is a deviation from the model it was calibrated with: with an adapted model's
+    effects the health index of θ̂ = 0 is 1, where the designed model reads the same engine
+    (its HPC efficiency 1 % lower) as worn."""
+    from prognostics.baseline import engine_health_index, health_effects
+
+    effects = health_effects({"calibration": {
+        "effects": ["design_scaling:component=HPC,eff=-0.01,flow=0"]}})
+    assert effects == ("design_scaling:component=HPC,eff=-0.01,flow=0",)
+    assert health_effects({}) == () and health_effects(None) == ()
+    zero = np.zeros((1, len(THETA_NAMES)))
+    np.testing.assert_allclose(engine_health_index(effects)(zero), 1.0, atol=1e-9)
+    shifted = zero.copy()
+    shifted[0, THETA_NAMES.index("HPC_eff_mod")] = -0.01
+    assert engine_health_index()(shifted)[0] < 0.95  # the designed model: a worn engine
 
 
 def test_floors_life_lookup_and_trend():

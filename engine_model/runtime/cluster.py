@@ -1,6 +1,6 @@
 """The one executor of the fleet commands (simulate, calibrate, the pipeline): tasks run in
 this process, on a pool of local worker processes or on a Dask cluster, behind one interface;
-and the engine model each worker process builds once (:func:`process_model`).
+a worker builds its engine model once (:func:`.shared_model.process_model`).
 
     from engine_model.runtime.cluster import executor
     with executor(scheduler, jobs) as ex:            # Serial, ProcessPool or Cluster
@@ -40,15 +40,12 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from typing import Protocol
 
 from engine_model.validation import InputError
 
 CONNECT_TIMEOUT = "20s"
-
-_MODELS: dict = {}
-
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 WATCH_PERIOD_S = 0.5
@@ -169,27 +166,6 @@ class ProcessPool(_Lifetime):
             p.join(timeout=5)
 
 
-def process_model(effects: Sequence[str] = (), threads: int | None = None):
-    """The engine model of this process with ``effects`` (specification strings, their
-    parameters held at the given values), built once per process and kept, so that a worker
-    (Dask or a process pool) builds it for its first task only and the simulate and calibrate
-    tasks share it: the process-wide :func:`shared_model.default_model` when there are no
-    effects and ``threads`` is None, else a variant on ``threads`` threads (1 in a worker).
-    The thread count changes no number (the samples are independent)."""
-    effects = tuple(effects)
-    if threads is None and not effects:
-        from .shared_model import default_model
-
-        return default_model()
-    key = (effects, threads)
-    if key not in _MODELS:
-        from engine_model.physics.effects import parse_effect_spec
-        from engine_model.solver.model import EngineModel
-
-        _MODELS[key] = EngineModel(effects=[parse_effect_spec(e) for e in effects],
-                                   n_threads=threads)
-    return _MODELS[key]
-
 
 class Cluster(_Lifetime):
     """A Dask client and what to close with it (see :func:`connect`)."""
@@ -288,5 +264,4 @@ def executor(scheduler=None, jobs: int = 1) -> Executor:
     return ProcessPool(jobs) if jobs > 1 else Serial()
 
 
-__all__ = ["Cluster", "Executor", "ProcessPool", "Serial", "connect", "executor",
-           "process_model", "watch_parent"]
+__all__ = ["Cluster", "Executor", "ProcessPool", "Serial", "connect", "executor", "watch_parent"]

@@ -63,8 +63,9 @@ from engine_model.channels import (
     XV_NAMES,
 )
 from engine_model.runtime.atomic import atomic_output, remove_path, swap_into_place
-from engine_model.runtime.cluster import executor, process_model
+from engine_model.runtime.cluster import executor
 from engine_model.runtime.ownership import OWNED_FILE
+from engine_model.runtime.shared_model import process_model
 from engine_model.validation import InputError
 
 from . import degradation, flight_profiles, sensor_noise
@@ -304,7 +305,7 @@ def check_effects(effects) -> None:
 # ------------------------------------------------------------------------------ Dask tasks
 def truth_model(effect_specs: Sequence[str] = (), threads: int | None = 1):
     """The truth model of this process for the steady effects among ``effect_specs``
-    (specification strings), built once per process (:func:`cluster.process_model`; a Dask
+    (specification strings), built once per process (:func:`shared_model.process_model`; a Dask
     worker's is single-threaded)."""
     from engine_model.physics.effects import parse_effect_spec, split_series_effects
 
