@@ -23,7 +23,10 @@ constant ones are dropped by the training), ``hybrid`` adds ``xs_hat + xv_hat + 
 (the model's estimates of the measured and virtual sensors and the calibrated health
 parameters), ``hybrid-theta`` adds ``theta_hat`` alone (the health estimate without the
 model's sensor estimates, which on a multi-condition file add as many columns as there are
-sensors and carry the condition more than the health). Each run is one line of
+sensors and carry the condition more than the health), ``hybrid-theta-rel`` adds to that
+``theta_rel``: θ̂ and the health index relative to the unit's own first cycles
+(:mod:`prognostics.flights`, causal; engines leave the factory different, and on FD002 the
+model's mismatch with NASA's engine lands in θ̂ as a per-unit offset). Each run is one line of
 ``--work/runs.jsonl`` (resumed); the table goes to stdout and, with ``--results``, to
 ``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``.
 
@@ -58,7 +61,8 @@ PUBLISHED = {
     "Li 2018 DCNN": {"FD001": 12.61, "FD002": 22.36, "FD003": 12.64, "FD004": 23.31},
 }
 INPUTS = {"data-driven": "w+cmapss", "hybrid": "w+cmapss+xs_hat+xv_hat+theta_hat",
-          "hybrid-theta": "w+cmapss+theta_hat"}
+          "hybrid-theta": "w+cmapss+theta_hat",
+          "hybrid-theta-rel": "w+cmapss+theta_hat+theta_rel"}
 MAX_RUL = 125.0
 MULTI_CONDITION = {"FD002", "FD004"}
 
