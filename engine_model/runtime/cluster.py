@@ -166,7 +166,6 @@ class ProcessPool(_Lifetime):
             p.join(timeout=5)
 
 
-
 class Cluster(_Lifetime):
     """A Dask client and what to close with it (see :func:`connect`)."""
 
