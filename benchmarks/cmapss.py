@@ -16,7 +16,9 @@ For every ``train_FD00x.txt`` in ``--data-dir`` (FD001-FD004, whichever are ther
    once, at that cycle, predictions capped like the targets;
 3. the floors on the same truncated units: the constant predictor (the mean capped RUL of the
    training rows) and the physics-only baseline (:mod:`prognostics.baseline`: the trend of the
-   health index of θ̂, no network).
+   health index of θ̂, no network), per calibration variant (``--params``,
+   ``--model-effects``, ``--noise``, ``--model-error``), the health index evaluated with the
+   engine model θ̂ was calibrated with.
 
 Inputs: ``data-driven`` is ``w + cmapss`` (the operating settings and NASA's 21 sensors;
 constant ones are dropped by the training), ``hybrid`` adds ``xs_hat + xv_hat + theta_hat``
@@ -173,17 +175,28 @@ def train_and_score(df, meta, cfg, held) -> dict:
 
 
 def floors(df, fold, held, hi_fn) -> dict:
+    """The floors' last-cycle RMSE on the held-out units: the constant (the training rows'
+    mean capped RUL), the life floor (the training units' mean life minus the cycle), the HI
+    lookup (the training rows' RUL against their health index, an isotonic curve) and the
+    physics trend (prognostics.floors, prognostics.baseline); no network."""
     from prognostics.baseline import baseline_predictions
     from prognostics.cross_validation import last_cycle_scores
+    from prognostics.flights import flight_table
+    from prognostics.floors import floor_predictions
 
     train = df[df["unit"].isin(fold.train)]
     const = float(np.minimum(train["RUL"].to_numpy(float), MAX_RUL).mean())
     last = held.groupby("unit").tail(1)
     y = last["RUL"].to_numpy(float)
     out = {"constant": float(np.sqrt(np.mean((y - const) ** 2)))}
+    pred = floor_predictions(flight_table(train), flight_table(held), ("life",), MAX_RUL)
+    out["life"] = last_cycle_scores(pred["life"], MAX_RUL)["rmse"]
     if hi_fn is not None:
         pred = baseline_predictions(held, hi_fn, MAX_RUL)
         out["physics"] = last_cycle_scores(pred, MAX_RUL)["rmse"]
+        looked = floor_predictions(flight_table(train, hi_fn), flight_table(held, hi_fn),
+                                   ("hi-lookup",), MAX_RUL)
+        out["hi_lookup"] = last_cycle_scores(looked["hi-lookup"], MAX_RUL)["rmse"]
     return out
 
 
@@ -266,6 +279,17 @@ def main(argv=None) -> int:
         units = sorted(df["unit"].unique().tolist())
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
         hi_fn = None
+        # the calibration's variant: what the hybrid inputs and the physics floor read
+        variant, suffix = {}, ""
+        if args.params != "default":
+            variant["params"] = args.params
+            suffix += f" --params {args.params}"
+        if args.model_effects is not None:
+            variant["model_effects"] = file_sha(args.model_effects)
+            suffix += f", adapted {variant['model_effects'][:8]}"
+        if noise_tag:
+            variant["noise"] = noise_tag
+            suffix += f" {noise_tag}"
         folds = list(enumerate(unit_folds(units, args.folds, args.fold_seed)))
         for k, fold in (reversed(folds) if args.reverse else folds):
             for model in args.models.split(","):
@@ -275,13 +299,13 @@ def main(argv=None) -> int:
                 held = truncate_units(df, fold.held_out, seed=args.fold_seed,
                                       min_cycles=int(base.resolved().window), max_rul=MAX_RUL)
                 fkey = run_key({"floors": 1, "subset": subset, "fold": k, "folds": args.folds,
-                                "fold_seed": args.fold_seed})
+                                "fold_seed": args.fold_seed, **variant})
                 if fkey not in done:
-                    if hi_fn is None:
-                        from prognostics.baseline import engine_health_index
-                        hi_fn = engine_health_index()
+                    if hi_fn is None:  # the health index of the model θ̂ belongs to
+                        from prognostics.baseline import engine_health_index, health_effects
+                        hi_fn = engine_health_index(health_effects(meta))
                     rec = {"key": fkey, "kind": "floors", "subset": subset, "fold": k,
-                           **floors(df, fold, held, hi_fn)}
+                           "variant": suffix.strip(", "), **floors(df, fold, held, hi_fn)}
                     append_run(cache, rec)
                     done[fkey] = rec
                 for name in args.inputs.split(","):
@@ -290,15 +314,9 @@ def main(argv=None) -> int:
                         body = {"subset": subset, "fold": k, "folds": args.folds,
                                 "fold_seed": args.fold_seed, "config": cfg.to_dict()}
                         label = name
-                        if args.params != "default" and name != "data-driven":
-                            body["params"] = args.params  # (data-driven reads no estimate)
-                            label = f"{name} --params {args.params}"
-                        if args.model_effects is not None and name != "data-driven":
-                            body["model_effects"] = file_sha(args.model_effects)
-                            label = f"{label}, adapted {body['model_effects'][:8]}"
-                        if noise_tag and name != "data-driven":
-                            body["noise"] = noise_tag
-                            label = f"{label} {noise_tag}"
+                        if name != "data-driven":  # (data-driven reads no estimate)
+                            body.update(variant)
+                            label += suffix
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})
@@ -388,10 +406,20 @@ def summarise(runs: pd.DataFrame) -> str:
                              f"{rel.mean():+.1f} % ± {rel.std(ddof=1):.1f} % (better in "
                              f"{int((rel < 0).sum())} of {len(rel)}) | {len(rel)} pairs | - |")
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
-        for name in ("constant", "physics"):
-            if name in fl.columns:
-                lines.append(f"| {subset} | {name} floor | {fl[name].mean():.2f} ± "
-                             f"{fl[name].std(ddof=1):.2f} | {len(fl)} folds | - |")
+        fl = fl.assign(variant=fl["variant"].fillna("") if "variant" in fl else "")
+        plain = fl[fl["variant"] == ""]
+        if "constant" in fl.columns and len(plain):
+            lines.append(f"| {subset} | constant floor | {plain['constant'].mean():.2f} ± "
+                         f"{plain['constant'].std(ddof=1):.2f} | {len(plain)} folds | - |")
+        if "life" in fl.columns and plain["life"].notna().any():
+            lines.append(f"| {subset} | life floor | {plain['life'].mean():.2f} ± "
+                         f"{plain['life'].std(ddof=1):.2f} | {len(plain)} folds | - |")
+        for variant, h in fl.groupby("variant", sort=True):
+            for col, name in (("hi_lookup", "HI lookup floor"), ("physics", "physics floor")):
+                if col in h.columns and h[col].notna().any():
+                    lines.append(f"| {subset} | {name}{', ' if variant else ''}{variant} | "
+                                 f"{h[col].mean():.2f} ± {h[col].std(ddof=1):.2f} | "
+                                 f"{len(h)} folds | - |")
         for paper, figs in PUBLISHED.items():
             if subset in figs:
                 lines.append(f"| {subset} | {paper} (test set) | {figs[subset]:.2f} | - | - |")

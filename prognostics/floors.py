@@ -72,8 +72,10 @@ def floor_predictions(dev: pd.DataFrame, evaluate: pd.DataFrame, which: Sequence
                       max_rul: float | None = None) -> dict[str, pd.DataFrame]:
     """Per floor, a per-flight prediction frame (``unit``, ``cycle``, ``RUL``, ``RUL_pred``
     and ``hs`` when present) on the flights of ``evaluate``, fitted on the flight table
-    ``dev`` (development units only). ``max_rul`` caps every prediction like capped targets
-    (None: no cap; the trend is capped at the longest development life either way)."""
+    ``dev`` (development units only). ``max_rul`` caps every prediction like capped targets,
+    and the HI lookup is fitted to the capped target (the mean of ``min(RUL, max_rul)`` at a
+    health index, which is what a capped score asks; None: no cap; the trend is capped at
+    the longest development life either way)."""
     unknown = [w for w in which if w not in FLOORS]
     if unknown:
         raise InputError(f"unknown floor(s) {', '.join(unknown)}; one of {', '.join(FLOORS)}")
@@ -88,7 +90,10 @@ def floor_predictions(dev: pd.DataFrame, evaluate: pd.DataFrame, which: Sequence
             if "HI_hat" not in dev.columns or "HI_hat" not in evaluate.columns:
                 raise InputError("the HI lookup needs the health index of θ̂ (a flight table "
                                  "built from a table with <q>_hat columns)")
-            pred = HiLookup.fit(dev["HI_hat"], dev[TARGET])(evaluate["HI_hat"])
+            target = dev[TARGET].to_numpy(float)
+            if max_rul is not None:  # the curve of the capped target, not a capped curve
+                target = np.minimum(target, max_rul)
+            pred = HiLookup.fit(dev["HI_hat"], target)(evaluate["HI_hat"])
         else:
             pred = trend_per_flight(evaluate, float(lives.max()))
         frame["RUL_pred"] = pred if max_rul is None else np.clip(pred, 0.0, max_rul)

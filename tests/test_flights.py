@@ -235,6 +235,11 @@ def test_floors_life_lookup_and_trend():
     np.testing.assert_allclose(trend[2:], ev["RUL"].to_numpy()[2:], atol=1e-6)
     with pytest.raises(InputError, match="unknown floor"):
         floor_predictions(dev, ev, ["oracle"])
+    # with a cap the lookup is the curve of the capped target, not the capped curve
+    capped = floor_predictions(dev, ev, ["hi-lookup"], max_rul=12.0)["hi-lookup"]
+    look12 = HiLookup.fit(dev["HI_hat"], np.minimum(dev["RUL"], 12.0))
+    np.testing.assert_allclose(capped["RUL_pred"], look12(ev["HI_hat"]))
+    assert capped["RUL_pred"].max() <= 12.0
 
 
 def test_phase_metrics_split_before_and_after_onset():

@@ -297,15 +297,20 @@ def test_a_critical_section_defers_any_handler_and_restores_it():
     the signal back itself, puts the handler back, and nested sections defer to the outer."""
     from engine_model.runtime.critical import critical_section, in_critical_section
 
-    before = signal.getsignal(signal.SIGINT)
-    finished = []
-    with pytest.raises(KeyboardInterrupt):
-        with critical_section():
+    # Python's own handler, whatever a test run before in this worker process left installed
+    # (a worker may also start with SIGINT ignored): restored at the end
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        finished = []
+        with pytest.raises(KeyboardInterrupt):
             with critical_section():
-                os.kill(os.getpid(), signal.SIGINT)
-                _busy(0.2)
-            _busy(0.2)  # the inner section's end does not raise it
-            finished.append(in_critical_section())
-        raise AssertionError("the deferred interrupt was not raised after the section")
-    assert finished == [True] and not in_critical_section()
-    assert signal.getsignal(signal.SIGINT) is before
+                with critical_section():
+                    os.kill(os.getpid(), signal.SIGINT)
+                    _busy(0.2)
+                _busy(0.2)  # the inner section's end does not raise it
+                finished.append(in_critical_section())
+            raise AssertionError("the deferred interrupt was not raised after the section")
+        assert finished == [True] and not in_critical_section()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, outer)
