@@ -189,14 +189,12 @@ def floors(df, fold, held, hi_fn) -> dict:
     last = held.groupby("unit").tail(1)
     y = last["RUL"].to_numpy(float)
     out = {"constant": float(np.sqrt(np.mean((y - const) ** 2)))}
-    pred = floor_predictions(flight_table(train), flight_table(held), ("life",), MAX_RUL)
+    pred = floor_predictions(flight_table(train, hi_fn), flight_table(held, hi_fn),
+                             ("life", "hi-lookup"), MAX_RUL)
     out["life"] = last_cycle_scores(pred["life"], MAX_RUL)["rmse"]
-    if hi_fn is not None:
-        pred = baseline_predictions(held, hi_fn, MAX_RUL)
-        out["physics"] = last_cycle_scores(pred, MAX_RUL)["rmse"]
-        looked = floor_predictions(flight_table(train, hi_fn), flight_table(held, hi_fn),
-                                   ("hi-lookup",), MAX_RUL)
-        out["hi_lookup"] = last_cycle_scores(looked["hi-lookup"], MAX_RUL)["rmse"]
+    out["hi_lookup"] = last_cycle_scores(pred["hi-lookup"], MAX_RUL)["rmse"]
+    out["physics"] = last_cycle_scores(baseline_predictions(held, hi_fn, MAX_RUL),
+                                       MAX_RUL)["rmse"]
     return out
 
 

@@ -37,10 +37,10 @@ def adapt(
                                               "(default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the held-out engine folds.")]
     = 0,
-    model_error: Annotated[float, typer.Option(
+    model_error: Annotated[float | None, typer.Option(
         "--model-error", help="The model's own error, a relative std added to each sample's "
         "noise (default 0.001, calibration.adaptation.data.MODEL_ERROR; 0: the noise alone).",
-        min=0.0)] = 0.001,
+        min=0.0)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the record as JSON.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -56,7 +56,7 @@ def adapt(
         from calibration.adaptation import adapt as run
         from calibration.adaptation import write_adapted
         from calibration.adaptation.artefact import ADAPTED_MODEL
-        from calibration.adaptation.data import DEFAULT_CHANNELS
+        from calibration.adaptation.data import DEFAULT_CHANNELS, MODEL_ERROR
         from calibration.adaptation.groups import check_names
         from engine_model.datasets import read_dataset
         from engine_model.runtime.ownership import check_output
@@ -70,7 +70,8 @@ def adapt(
         err = console(stderr=True)
         say = None if (quiet or as_json) else (lambda msg: err.print(msg, soft_wrap=True))
         res = run(df, tuple(chans), cands, early_cycles,
-                  log=say, source=str(data), seed=seed, model_error=model_error)
+                  log=say, source=str(data), seed=seed,
+                  model_error=MODEL_ERROR if model_error is None else model_error)
         record = res.record()
         write_adapted(record, out, overwrite, (data,))
     if as_json:

@@ -65,7 +65,7 @@ from .features import (
     sort_table,
     unobservable_columns,
 )
-from .flights import one_per_cycle
+from .flights import flight_table, one_per_cycle
 from .floors import unit_lives
 from .models import build_model, parameter_count
 from .scaling import CONDITION, Scaler, fit_scaler
@@ -147,8 +147,6 @@ def flight_frame(df: pd.DataFrame, source: str = "table",
     coordinates when ``df`` has ``<q>_hat`` columns, evaluated with the engine model that θ̂
     was calibrated with (``effects``: :func:`.baseline.health_effects` of the table's
     metadata; none: the model as designed)."""
-    from .flights import flight_table
-
     hi = None
     if any(q + "_hat" in df.columns for q in THETA_NAMES):
         from .baseline import engine_health_index
