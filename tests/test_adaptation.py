@@ -16,13 +16,7 @@ from calibration.adaptation import adapt, load_adapted, write_adapted
 from calibration.adaptation.data import MODEL_ERROR, fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
-from calibration.adaptation.selection import (
-    MIN_GAIN,
-    OutOfSample,
-    enters,
-    shared_of,
-    simplest_best,
-)
+from calibration.adaptation.selection import MIN_GAIN, OutOfSample, enters, shared_of
 from calibration.discrepancy.candidates import CandidateModel
 from calibration.measurement_noise import noise_from_data
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel
@@ -150,42 +144,20 @@ def test_a_candidate_enters_on_the_out_of_sample_gain_and_the_worst_condition_is
     assert not enters(OutOfSample(small, chi2={1: 8.0, 2: 11.9, 3: 10.0}), current)
 
 
-def test_a_linear_map_shape_is_a_restriction_of_the_full_one_and_replaces_nothing_twice(
-        candidate_model):
-    groups = build_groups(CHANNELS, CANDIDATES)
-    by = {c.name: c for c in groups}
-    lin, full = by["map_linear_HPC"], by["map_scaling_HPC"]
-    assert lin.parent == "map_scaling_HPC" and lin.effect is full.effect
-    assert lin.params == ("eff_1", "flow_1") and lin.fixed == ("eff_2", "flow_2")
-    np.testing.assert_array_equal(lin.index, full.index[[0, 2]])
-    # not compiled on its own: the model's phi is the parents' alone
-    assert candidate_model.n_phi == sum(len(c.params) for c in groups if c.parent is None)
-    assert shared_of(groups, ["map_linear_HPC", "map_scaling_HPC"]).free.tolist() == \
-        full.index.tolist()
-    assert lin.spec([0.3, -0.1]) == "map_scaling:component=HPC,eff_1=0.3,flow_1=-0.1"
-    # judged side by side, the full one wins only by MIN_GAIN
-    near = {"map_scaling_HPC": (None, OutOfSample(1.0 * (1 - MIN_GAIN / 2))),
-            "map_linear_HPC": (None, OutOfSample(1.0))}
-    assert simplest_best(groups, near) == "map_linear_HPC"
-    far = {**near, "map_scaling_HPC": (None, OutOfSample(1.0 * (1 - 2 * MIN_GAIN)))}
-    assert simplest_best(groups, far) == "map_scaling_HPC"
-
-
 def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
         candidate_model, shaped):
     res = adapt(shaped, CHANNELS, CANDIDATES, model=candidate_model,
                 model_error=0.0)
     sel = res.selection
     added = [c for c in sel.chosen if not c.startswith("design_scaling")]  # levels: always
-    # the shape in corrected speed, linear or up to quadratic (chosen out of sample)
-    assert added and added[0] in ("map_linear_HPC", "map_scaling_HPC"), sel.chosen
+    assert added and added[0] == "map_scaling_HPC"
     assert sel.after.chi2_out < 0.5 * sel.before.chi2_out
     assert sel.after.chi2_out < 1.5  # the noise: 1
     rec = res.record()
     assert rec["selection"]["chi2_engines_out"]["after"] < rec["selection"][
         "chi2_engines_out"]["before"]
     p = {(r["candidate"], r["parameter"]): r for r in rec["parameters"]}
-    assert p[(added[0], "eff_1")]["value"] > 0.2
+    assert p[("map_scaling_HPC", "eff_1")]["value"] > 0.2
     assert all(np.isfinite(r["std"]) and r["std"] > 0 for r in rec["parameters"])
 
 

@@ -11,8 +11,6 @@ design_scaling_<c>     the component's efficiency and flow level (design-point s
 map_scaling_<c>        their change with the component's corrected speed, linear and
                        quadratic in ``n_corr - 1`` (condition-dependent scaling: Li &
                        Pilidis 2010; multi-point adaptation: Tsoutsanis et al. 2015)
-map_linear_<c>         the same, linear only (the quadratic terms held at 0): a
-                       *restriction* of ``map_scaling_<c>``, carried with it (below)
 map_slope_<k>          the slope of a compressor's speed lines (``k``: fan, LPC, HPC): the
                        pressure ratio's change along a speed line, which moves between
                        conditions at the same corrected speed (the bypass nozzle chokes
@@ -29,16 +27,6 @@ sensor_gain_<ch>       a sensor convention: the channel reads ``(1 + gain)`` tim
 =====================  ====================================================================
 
 for ``c`` in fan, LPC, HPC, HPT, LPT and every fitted channel ``ch``.
-
-The order of a map shape is chosen like everything else, out of sample: naming
-``map_scaling`` offers both ``map_linear_<c>`` and ``map_scaling_<c>`` (one effect instance,
-:attr:`~calibration.discrepancy.candidates.Candidate.parent`); the full one may enter alone,
-or after the linear one, replacing it, when its quadratic terms lower the held-out error
-again (:mod:`.selection`). A polynomial's order is the classic case for a choice by
-prediction error (Hastie, Tibshirani & Friedman 2009, sec. 7.10): fitted on five conditions
-of which four share one corrected fan speed, a quadratic term may only bend the model between
-the conditions it saw (on FD002, 2026-11-27, three of the eight parameters on a bound were
-quadratic terms).
 
 Prior and bounds of every parameter: the prior std is the larger end of its *realistic*
 range (``Param.range``, e.g. 4 % bleed, +-3 % on a design-point scaler), the bounds its
@@ -63,8 +51,6 @@ STEADY_GROUPS = ("design_scaling", "map_scaling", "map_slope", *STEADY_DEFAULT)
 PER_COMPONENT = {"design_scaling": COMPONENT_MODS, "map_scaling": COMPONENT_MODS,
                  "map_slope": ("fan", "LPC", "HPC")}
 SENSOR_GROUP = "sensor_gain"
-#: Restrictions carried with a group: name prefix, parameters kept (the others held at 0).
-RESTRICTIONS = {"map_scaling": ("map_linear", ("eff_1", "flow_1"))}
 
 
 def _prior(effect, params) -> np.ndarray:
@@ -99,9 +85,6 @@ def build_groups(channels, names=None) -> list[Candidate]:
             continue
         if n in PER_COMPONENT:
             out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in PER_COMPONENT[n]]
-            if n in RESTRICTIONS:
-                out += [_restricted(c, *RESTRICTIONS[n]) for c in out
-                        if c.registry_name == n]
         else:
             out.append(_make(parse_effect_spec(n)))
     if SENSOR_GROUP in names:
@@ -115,34 +98,10 @@ def build_groups(channels, names=None) -> list[Candidate]:
             out.append(c)
     k = 0
     for c in out:
-        if c.parent is None:
-            c.index = np.arange(k, k + len(c.params))
-            k += len(c.params)
+        c.index = np.arange(k, k + len(c.params))
         c.prior = _prior(c.effect, c.params)
-    by_name = {c.name: c for c in out}
-    for c in out:
-        if c.parent is not None:
-            full = by_name[c.parent]
-            c.index = full.index[[full.params.index(q) for q in c.params]]
+        k += len(c.params)
     return out
-
-
-def _restricted(full: Candidate, prefix: str, keep) -> Candidate:
-    """The restriction of ``full`` to the parameters ``keep`` (the others held at their
-    neutral values), named ``prefix_<component>``."""
-    sel = [full.params.index(q) for q in keep]
-    return Candidate(f"{prefix}_{full.effect.component}", full.effect, tuple(keep),
-                     full.lower[sel], full.upper[sel],
-                     tuple(q for q in full.params if q not in keep), valid=full.valid[sel],
-                     parent=full.name)
-
-
-def without_replaced(groups, names) -> list:
-    """``names`` less every restriction whose parent is among them (the parent carries its
-    parameters)."""
-    parents = {c.name: c.parent for c in groups}
-    names = list(names)
-    return [n for n in names if parents.get(n) not in names]
 
 
 def bounds(c: Candidate) -> tuple[np.ndarray, np.ndarray]:

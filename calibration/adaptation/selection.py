@@ -23,12 +23,8 @@ Learning*, 2nd ed., sec. 3.3.2 and 7.10):
    of the in-sample objective;
 2. *judge*: the :data:`TOP` best are refitted fully and scored by :func:`condition_out`;
 3. the best enters only if it lowers ``chi2_out`` by at least :data:`MIN_GAIN` (relative);
-   otherwise the selection stops. A candidate that enters after its own restriction
-   (``map_scaling_<c>`` after ``map_linear_<c>``: the quadratic terms added, :mod:`.groups`)
-   replaces it; a restriction whose parent is in is not tried; judged side by side, the
-   full one is preferred to its restriction only by the same margin
-   (:func:`simplest_best`). Nothing is fitted per operating point: every candidate is one
-   set of numbers for the whole envelope. The worst condition left out (the largest
+   otherwise the selection stops. Nothing is fitted per operating point: every candidate is
+   one set of numbers for the whole envelope. The worst condition left out (the largest
    per-condition ``chi2``, :attr:`OutOfSample.worst`) is reported at every step beside the
    sum. A guard that let a candidate in only if it did not raise the worst condition was
    tried on FD002 (2026-11-26) and dropped: it stopped the selection after two or four
@@ -48,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .fleet_fit import FleetData, FleetFit, Shared, evaluate, fit_fleet
-from .groups import LEVEL_GROUP, bounds, without_replaced
+from .groups import LEVEL_GROUP, bounds
 
 #: Gauss-Newton steps of a screening refit.
 SCREEN_ITER = 4
@@ -61,10 +57,8 @@ MIN_GAIN = 0.02
 
 
 def shared_of(groups, chosen) -> Shared:
-    """The :class:`Shared` parameters of the candidates named ``chosen`` (a restriction
-    whose parent is among them counts once, as its parent)."""
-    chosen = set(without_replaced(groups, chosen))
-    sel = [c for c in groups if c.name in chosen]
+    """The :class:`Shared` parameters of the candidates named ``chosen``."""
+    sel = [c for c in groups if c.name in set(chosen)]
     if not sel:
         return Shared.none()
     lo, hi = zip(*(bounds(c) for c in sel), strict=True)
@@ -130,18 +124,6 @@ def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> Ou
     return res
 
 
-def simplest_best(groups, judged: dict) -> str:
-    """The name in ``judged`` (name -> (fit, :class:`OutOfSample`)) with the lowest
-    ``chi2_out``; but a candidate judged beside its own restriction wins over it only by
-    :data:`MIN_GAIN`, the margin its extra parameters would need to enter after it."""
-    best = min(judged, key=lambda n: judged[n][1].chi2_out)
-    parent_of = {c.name: c.parent for c in groups}
-    for n, (_, o) in judged.items():
-        if parent_of.get(n) == best and not enters(judged[best][1], o):
-            return n
-    return best
-
-
 @dataclass
 class Step:
     """One step of the selection: the candidate tried, its out-of-sample error, entered?"""
@@ -187,33 +169,32 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8) -> Sele
     for _ in range(max_steps):
         ranked = []
         for c in groups:
-            if c.name in chosen or c.parent in chosen:
+            if c.name in chosen:
                 continue
             trial = fit_fleet(model, data, shared_of(groups, [*chosen, c.name]), fit.phi,
                               fit.delta, max_iter=SCREEN_ITER, x0=fit.x)
             ranked.append((trial.cost, c.name))
         ranked.sort()
-        judged = {}
+        best = None
         for _, name in ranked[:TOP]:
             sh = shared_of(groups, [*chosen, name])
             full = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x)
             o = condition_out(model, data, sh, full)
             say(f"  {name}: chi2 in {full.chi2_per_sample():.3g}, out of sample "
                 f"{o.chi2_out:.3g}, worst condition {o.worst:.3g}")
-            judged[name] = (full, o)
-        if not judged:
+            if best is None or o.chi2_out < best[2].chi2_out:
+                best = (name, full, o)
+        if best is None:
             break
-        name = simplest_best(groups, judged)
-        full, o = judged[name]
+        name, full, o = best
         entered = enters(o, oos)
         steps.append(Step(name, full.chi2_per_sample(), o.chi2_out, o.worst, entered))
         if not entered:
             say(f"stop: {name} does not lower the out-of-sample error by {MIN_GAIN:.0%}")
             break
-        replaced = [n for n in chosen if n not in without_replaced(groups, [*chosen, name])]
-        chosen = [*without_replaced(groups, [*chosen, name])]
+        chosen.append(name)
         fit, oos = full, o
-        say(f"+ {name}" + (f" (replaces {', '.join(replaced)})" if replaced else ""))
+        say(f"+ {name}")
     return Selection(chosen, fit, before, oos, base_fit, steps)
 
 

@@ -55,10 +55,7 @@ class Candidate:
     ``fixed`` (parameters held at their default), ``channel`` (sensor candidates),
     ``index`` (positions of ``params`` in the loop's global ``phi``), ``valid`` (n, 2): each
     parameter's documented valid range (``Param.valid``; +-inf where open): an estimate
-    outside it is not this effect (:mod:`.confirm`). ``parent``: set on a *restriction*, the
-    name of the candidate whose effect instance it shares with some parameters held at
-    their neutral values (``fixed``); its ``index`` points into the parent's, and it is not
-    compiled on its own (:class:`CandidateModel` skips it)."""
+    outside it is not this effect (:mod:`.confirm`)."""
 
     name: str
     effect: Effect
@@ -69,7 +66,6 @@ class Candidate:
     channel: str | None = None
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     valid: np.ndarray | None = None
-    parent: str | None = None
 
     def outside_valid(self, values) -> list:
         """The parameters whose ``values`` lie outside their valid range."""
@@ -218,14 +214,12 @@ class CandidateModel:
     sensitivities with respect to the estimated theta and every candidate parameter.
 
     ``phi`` is the loop's global vector (zeros: the base model). Sensor effects are applied
-    in candidate order after the steady solve. A restriction of another candidate
-    (:attr:`Candidate.parent`) adds nothing to the model: its parameters are its parent's."""
+    in candidate order after the steady solve."""
 
     def __init__(self, candidates: list[Candidate], design=None, compiled: bool = True,
                  model=None, fixed=()):
         from engine_model import EngineModel
 
-        candidates = [c for c in candidates if c.parent is None]
         self.candidates = candidates
         self.n_phi = int(sum(len(c.params) for c in candidates))
         steady = [c for c in candidates if not c.sensor]
