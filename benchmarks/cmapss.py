@@ -198,6 +198,27 @@ def floors(df, fold, held, hi_fn) -> dict:
     return out
 
 
+def pooled_units(df, pool, args) -> tuple:
+    """``df`` with the training units of the subsets ``pool`` appended (calibrated with the
+    same variant; unit ``u`` of the i-th pooled subset becomes ``100000 (i + 1) + u``), and
+    their new ids. C-MAPSS's subsets share one engine and label their conditions alike
+    (``hyprog data import-cmapss``), so the pooled rows join the statistics of their own
+    condition in the per-condition standardisation (fitted on every training row)."""
+    from engine_model.datasets import read_dataset
+
+    frames, ids = [df], []
+    for i, other in enumerate(pool):
+        feat = prepare_subset(args.data_dir, args.work, other, args.params,
+                              args.model_effects, args.noise, args.model_error)
+        extra, _ = read_dataset(feat)
+        extra = extra.assign(unit=extra["unit"] + 100000 * (i + 1))
+        frames.append(extra[[c for c in df.columns if c in extra.columns]])
+        ids += sorted(extra["unit"].unique().tolist())
+    if not pool:
+        return df, []
+    return pd.concat(frames, ignore_index=True), ids
+
+
 def unobservable_somewhere(df, subset: str):
     """``df`` with every health-parameter estimate that the calibration found unobservable in
     some unit (NaN in some rows) set to NaN in every row, so that the networks leave it out
@@ -233,6 +254,11 @@ def main(argv=None) -> int:
                     "labelled with it when not 'model')")
     ap.add_argument("--model-error", type=float, default=0.0,
                     help="hyprog calibrate --model-error (runs labelled with it when not 0)")
+    ap.add_argument("--pool", default="",
+                    help="subsets whose training units join every fold's training units of "
+                    "the other subsets (same calibration variant; held-out units and floors "
+                    "stay the subset's own; runs labelled '+ FD00x units'): NASA's engine is "
+                    "the same in every subset, and FD001 flies FD002's condition 1")
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--fold-seed", type=int, default=0)
@@ -273,8 +299,11 @@ def main(argv=None) -> int:
         feat = prepare_subset(args.data_dir, args.work, subset, args.params, args.model_effects,
                               args.noise, args.model_error)
         df, meta = read_dataset(feat)
-        df = unobservable_somewhere(df, subset)
         units = sorted(df["unit"].unique().tolist())
+        pool = [p for p in args.pool.split(",") if p and p != subset
+                and (args.data_dir / f"train_{p}.txt").exists()]
+        df, pooled = pooled_units(df, pool, args)
+        df = unobservable_somewhere(df, subset)
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
         hi_fn = None
         # the calibration's variant: what the hybrid inputs and the physics floor read
@@ -292,7 +321,8 @@ def main(argv=None) -> int:
         for k, fold in (reversed(folds) if args.reverse else folds):
             for model in args.models.split(","):
                 base = TrainConfig(model=model, max_rul=MAX_RUL, normalise=normalise,
-                                   units=fold.train, test_units=(), device="cpu")
+                                   units=(*fold.train, *pooled), test_units=(),
+                                   device="cpu")
                 base = replace(base, **overrides)
                 held = truncate_units(df, fold.held_out, seed=args.fold_seed,
                                       min_cycles=int(base.resolved().window), max_rul=MAX_RUL)
@@ -315,6 +345,9 @@ def main(argv=None) -> int:
                         if name != "data-driven":  # (data-driven reads no estimate)
                             body.update(variant)
                             label += suffix
+                        if pool:
+                            body["pool"] = pool
+                            label += " + " + ", ".join(pool) + " units"
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})
@@ -396,11 +429,13 @@ def summarise(runs: pd.DataFrame) -> str:
                              f"{ens.mean():.2f} ± {ens.std(ddof=1):.2f} | {len(ens)} folds | - |")
         for model, h in nets.groupby("model", sort=True):
             pair = h.pivot_table(index=["fold", "seed"], columns="inputs", values="rmse")
-            if "data-driven" not in pair.columns:
-                continue
-            for other in [c for c in pair.columns if c != "data-driven"]:
-                rel = (pair[other] / pair["data-driven"] - 1.0).dropna() * 100
-                lines.append(f"| {subset} | {model}: {other} vs data-driven, paired | "
+            for other in [c for c in pair.columns if not c.startswith("data-driven")]:
+                # against the data-driven network trained on the same units
+                ref = "data-driven" + (other[other.index(" + "):] if " + " in other else "")
+                if ref not in pair.columns:
+                    continue
+                rel = (pair[other] / pair[ref] - 1.0).dropna() * 100
+                lines.append(f"| {subset} | {model}: {other} vs {ref}, paired | "
                              f"{rel.mean():+.1f} % ± {rel.std(ddof=1):.1f} % (better in "
                              f"{int((rel < 0).sum())} of {len(rel)}) | {len(rel)} pairs | - |")
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
