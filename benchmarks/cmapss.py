@@ -317,6 +317,9 @@ def main(argv=None) -> int:
         if noise_tag:
             variant["noise"] = noise_tag
             suffix += f" {noise_tag}"
+        # what every run's label ends with: the pooled units, another partition of the folds
+        tail = (" + " + ", ".join(pool) + " units" if pool else "") + \
+            (f", fold seed {args.fold_seed}" if args.fold_seed else "")
         folds = list(enumerate(unit_folds(units, args.folds, args.fold_seed)))
         for k, fold in (reversed(folds) if args.reverse else folds):
             for model in args.models.split(","):
@@ -333,7 +336,9 @@ def main(argv=None) -> int:
                         from prognostics.baseline import engine_health_index, health_effects
                         hi_fn = engine_health_index(health_effects(meta))
                     rec = {"key": fkey, "kind": "floors", "subset": subset, "fold": k,
-                           "variant": suffix.strip(", "), **floors(df, fold, held, hi_fn)}
+                           "variant": (suffix + (f", fold seed {args.fold_seed}"
+                                                 if args.fold_seed else "")).strip(", "),
+                           **floors(df, fold, held, hi_fn)}
                     append_run(cache, rec)
                     done[fkey] = rec
                 for name in args.inputs.split(","):
@@ -347,7 +352,7 @@ def main(argv=None) -> int:
                             label += suffix
                         if pool:
                             body["pool"] = pool
-                            label += " + " + ", ".join(pool) + " units"
+                        label += tail
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})
@@ -429,11 +434,14 @@ def summarise(runs: pd.DataFrame) -> str:
                              f"{ens.mean():.2f} ± {ens.std(ddof=1):.2f} | {len(ens)} folds | - |")
         for model, h in nets.groupby("model", sort=True):
             pair = h.pivot_table(index=["fold", "seed"], columns="inputs", values="rmse")
+            refs = [c for c in pair.columns if c.startswith("data-driven")]
             for other in [c for c in pair.columns if not c.startswith("data-driven")]:
-                # against the data-driven network trained on the same units
-                ref = "data-driven" + (other[other.index(" + "):] if " + " in other else "")
-                if ref not in pair.columns:
+                # against the data-driven network of the same units and folds (the longest
+                # data-driven label whose ending, pooled units or fold seed, ``other`` shares)
+                ends = [r for r in refs if other.endswith(r[len("data-driven"):])]
+                if not ends:
                     continue
+                ref = max(ends, key=len)
                 rel = (pair[other] / pair[ref] - 1.0).dropna() * 100
                 lines.append(f"| {subset} | {model}: {other} vs {ref}, paired | "
                              f"{rel.mean():+.1f} % ± {rel.std(ddof=1):.1f} % (better in "
