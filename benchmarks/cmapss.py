@@ -206,6 +206,8 @@ def pooled_units(df, pool, args) -> tuple:
     condition in the per-condition standardisation (fitted on every training row)."""
     from engine_model.datasets import read_dataset
 
+    if not pool:
+        return df, []
     frames, ids = [df], []
     for i, other in enumerate(pool):
         feat = prepare_subset(args.data_dir, args.work, other, args.params,
@@ -214,8 +216,6 @@ def pooled_units(df, pool, args) -> tuple:
         extra = extra.assign(unit=extra["unit"] + 100000 * (i + 1))
         frames.append(extra[[c for c in df.columns if c in extra.columns]])
         ids += sorted(extra["unit"].unique().tolist())
-    if not pool:
-        return df, []
     return pd.concat(frames, ignore_index=True), ids
 
 
@@ -318,8 +318,8 @@ def main(argv=None) -> int:
             variant["noise"] = noise_tag
             suffix += f" {noise_tag}"
         # what every run's label ends with: the pooled units, another partition of the folds
-        tail = (" + " + ", ".join(pool) + " units" if pool else "") + \
-            (f", fold seed {args.fold_seed}" if args.fold_seed else "")
+        partition = f", fold seed {args.fold_seed}" if args.fold_seed else ""
+        tail = (" + " + ", ".join(pool) + " units" if pool else "") + partition
         folds = list(enumerate(unit_folds(units, args.folds, args.fold_seed)))
         for k, fold in (reversed(folds) if args.reverse else folds):
             for model in args.models.split(","):
@@ -336,8 +336,7 @@ def main(argv=None) -> int:
                         from prognostics.baseline import engine_health_index, health_effects
                         hi_fn = engine_health_index(health_effects(meta))
                     rec = {"key": fkey, "kind": "floors", "subset": subset, "fold": k,
-                           "variant": (suffix + (f", fold seed {args.fold_seed}"
-                                                 if args.fold_seed else "")).strip(", "),
+                           "variant": (suffix + partition).strip(", "),
                            **floors(df, fold, held, hi_fn)}
                     append_run(cache, rec)
                     done[fkey] = rec
