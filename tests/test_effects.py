@@ -247,3 +247,43 @@ def test_map_scaling_is_a_shape_in_corrected_speed(model):
     for spec in ("map_scaling", "map_scaling:component=HPX"):
         with pytest.raises(EffectSpecError, match="component"):
             parse_effect_spec(spec)
+
+
+def test_pressure_ratio_scaler_scales_the_head_at_a_map_point(model):
+    """At one map point the scaler multiplies the isentropic head and the work by 1 + pr_mod
+    and leaves the flow and the efficiency as they are; the surge line scales with it."""
+    from engine_model.physics import components
+
+    fan = model.design.fan
+    base = components.compressor(fan, 288.15, 101325.0, 0.95, 0.3)
+    up = components.compressor(fan, 288.15, 101325.0, 0.95, 0.3, pr_mod=0.02)
+    for k in ("Wc", "W", "eta"):
+        assert float(up[k]) == pytest.approx(float(base[k]), rel=1e-12)
+    assert float(up["dh"]) == pytest.approx(1.02 * float(base["dh"]), rel=1e-12)
+    assert float(up["PR"]) > float(base["PR"])
+    assert float(up["PR_surge"]) > float(base["PR_surge"])
+    # zero is the map as designed, bit for bit
+    same = components.compressor(fan, 288.15, 101325.0, 0.95, 0.3, pr_mod=0.0)
+    assert all(float(same[k]) == float(base[k]) for k in base)
+
+
+def test_map_pressure_ratio_level_and_shape(model):
+    """The shape terms are zero at the design corrected speed (SLS full power: nothing
+    moves); the level lowers the fan's pressure ratio at the held corrected fan speed."""
+    m = EngineModel(design=model.design,
+                    effects=[parse_effect_spec("map_pressure_ratio:component=fan")],
+                    compiled=False)
+    w = w_rows([(0.0, 0.0, 100.0), (35000.0, 0.8, 80.0)])
+    y0 = m.evaluate(w, p=np.zeros(3))
+    shape = m.evaluate(w, p=np.array([0.0, 0.05, 0.2]))
+    rel = (shape[list(XS_NAMES)] - y0[list(XS_NAMES)]) / y0[list(XS_NAMES)].abs()
+    assert rel.iloc[0].abs().max() < 1e-9
+    assert rel.iloc[1].abs().max() > 1e-4
+    level = m.evaluate(w, p=np.array([-0.02, 0.0, 0.0]))
+    for i in range(2):
+        assert level["P15"].iloc[i] / level["P2"].iloc[i] < y0["P15"].iloc[i] / y0["P2"].iloc[i]
+        assert level["Nf"].iloc[i] == pytest.approx(y0["Nf"].iloc[i], rel=1e-9)
+    for spec in ("map_pressure_ratio", "map_pressure_ratio:component=HPT",
+                 "map_pressure_ratio:component=fan,pr_0=0.2"):
+        with pytest.raises(EffectSpecError):
+            parse_effect_spec(spec)

@@ -31,7 +31,8 @@ def duct_loss(P_in, Wc, Wc_des, dp_des):
     return P_in * (1.0 - dp_des * (Wc / Wc_des) ** 2)
 
 
-def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0, slope_mod=0.0):
+def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0, slope_mod=0.0,
+               pr_mod=0.0):
     """Compressor on its map: corrected flow, exit state, specific work and stall margin.
 
     The map (:class:`maps.CompressorMap`) gives the isentropic head, hence the pressure
@@ -43,19 +44,32 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0, sl
     line of the compressor's own flow capacity (:meth:`maps.CompressorMap.beta_surge`).
     ``slope_mod`` scales the slope of the map's work line, hence of its speed lines
     (:meth:`maps.CompressorMap.work`; 0 for the map as designed).
+
+    ``pr_mod`` is the map's pressure-ratio scaler, the third of the classic scalers of a
+    component map beside flow and efficiency (Kurzke, ASME 96-GT-164; Li & Pilidis, ASME
+    J. Eng. Gas Turbines Power 132, 2010; C-MAPSS's ``<c>_PR_mod``, Saxena et al. 2008,
+    Table 1): the isentropic head of every map point, the surge line's included, is
+    ``(1 + pr_mod)`` times the map's, and the work with it at the map's efficiency
+    (``dh = (1 + pr_mod) work / (1 + eff_mod)``). Written on the head rather than on
+    ``PR - 1`` (GasTurb's form), to which it is equal to first order in ``PR - 1``, so that
+    the efficiency of a map point is the map's and the stall margin at a map point is
+    unchanged. 0 (the default) leaves the expression graph as it is.
     """
+    def scaled(x):
+        return x if isinstance(pr_mod, (int, float)) and pr_mod == 0 else x * (1.0 + pr_mod)
+
     wc = cmap.flow(n, beta, flow_mod)
     W = physical_flow(wc, T_in, P_in)
-    head = cmap.head(n, beta, slope_mod) * T_in  # isentropic specific work [J/kg]
+    head = scaled(cmap.head(n, beta, slope_mod) * T_in)  # isentropic specific work [J/kg]
     eta = cmap.efficiency(n, beta, eff_mod)
     h_in = gas.h(T_in, far)
     cp_in = gas.cp(T_in, far)
     T_is = gas.t_from_h(h_in + head, far, T_in + head / cp_in)
     pr = gas.pressure_ratio_isentropic(T_in, T_is, far)
-    dh = cmap.work(n, beta, slope_mod) * T_in / (1.0 + eff_mod)  # = head / eta
+    dh = scaled(cmap.work(n, beta, slope_mod) * T_in) / (1.0 + eff_mod)  # = head / eta
     T_out = gas.t_from_h(h_in + dh, far, T_in + dh / cp_in)
     # surge line at the same corrected speed
-    head_s = cmap.head(n, cmap.beta_surge(n, flow_mod), slope_mod) * T_in
+    head_s = scaled(cmap.head(n, cmap.beta_surge(n, flow_mod), slope_mod) * T_in)
     T_is_s = gas.t_from_h(h_in + head_s, far, T_in + head_s / cp_in)
     pr_s = gas.pressure_ratio_isentropic(T_in, T_is_s, far)
     return {

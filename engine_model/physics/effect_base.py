@@ -44,6 +44,8 @@ hook (value, unit)                     context keywords
 ``fan_slope_mod``, ``LPC_slope_mod``,  the same as the component's ``<theta name>`` hooks;
 ``HPC_slope_mod`` (fraction, default   scales the slope of the map's work line
 0)                                     (:meth:`maps.CompressorMap.work`)
+``fan_pr_mod``, ``LPC_pr_mod``,        the same; scales the map's isentropic head and work
+``HPC_pr_mod`` (fraction, default 0)   by ``1 + value`` (:func:`components.compressor`)
 ``P2`` (Pa, fan face after the         ``Pt0`` [Pa] (free-stream total pressure)
 intake loss)
 ``A18``, ``A8`` (m^2, nozzle throats)  -

@@ -9,71 +9,81 @@ sensor gain within +-50 %, a gain drift within +-1 % per cycle, time constants 0
 and 0-3600 s (thermal). A value outside it is refused with the effect and parameter named
 before a model variant is compiled.
 
-=================  =====================================================================
-effect             physics
-=================  =====================================================================
-customer_bleed     air taken from the HPC exit for the aircraft (cabin, anti-ice):
-                   ``W = (f0 + f_alt alt/10,000 ft) W25``; typical airliner ECS demand is
-                   1-2 % of core flow at cruise (Walsh & Fletcher, *Gas Turbine
-                   Performance*, 2nd ed., ch. 5).
-hp_offtake         shaft power taken from the HP spool by the accessory gearbox
-                   (generators, hydraulic pumps), ``P`` [kW]; 100-250 kW for a twin of
-                   this class.
-reynolds           Reynolds-number effect on the turbomachinery at altitude. The Reynolds
-                   number index of a component, ``RNI = (P_in/P_in_des)
-                   (T_in/T_in_des)^-1.2`` (Re ~ rho U L / mu with U ~ sqrt(T) at constant
-                   corrected speed and mu ~ T^0.7), scales the loss: ``(1 - eta) = (1 -
-                   eta_RNI=1) RNI^-n`` (Wassell, ASME J. Eng. Power 90, 1968; Walsh &
-                   Fletcher ch. 4 give n = 0.1-0.2). The efficiency modifier changes by
-                   ``-(1/eta_des - 1)(RNI^-n - 1)`` and the flow modifier by ``flow_ratio``
-                   times that.
-inlet_loss         an extra intake total-pressure loss (damage, ice, a poor intake lip):
-                   ``P2 <- P2 (1 - dp - dp_ram Mach^2)``.
-nozzle_area        a change of the core (``dA8``) and bypass (``dA18``) nozzle throat areas,
-                   fractions (erosion, a mis-rigged variable nozzle, a trim).
-map_scaling        map adaptation of one component (option ``component``: fan, LPC, HPC,
-                   HPT, LPT): its efficiency and flow scalers vary with its corrected speed,
-                   ``d_eff = eff_1 dn + eff_2 dn^2`` and ``d_flow = flow_1 dn + flow_2 dn^2``
-                   with ``dn = n_corr - 1`` (``n_corr``: corrected speed relative to the SLS
-                   design point), added to the component's modifiers. A generic map scaled
-                   to the design point is right there and drifts away from the real
-                   component's towards part power; performance engineers correct it with
-                   scaling factors that depend on the operating point ("modification
-                   factors", Stamatis, Mathioudakis & Papailiou, ASME J. Eng. Gas Turbines
-                   Power 112, 1990; scaling factors along the operating line, Li & Pilidis,
-                   2010; Kurzke, ASME GT2011 on which shapes a map can physically take;
-                   polynomial map tuning, Tsoutsanis et al., Applied Energy 135, 2014). The
-                   constant term is left out: at the design speed the scaler is theta itself
-                   (the health parameter), so the effect is the shape, not the level.
-map_slope          the slope of one compressor's speed lines (option ``component``: fan,
-                   LPC, HPC): the slope ``kappa`` of its map's work line, ``psi / psi_des =
-                   1 - kappa (phi - 1)`` along a speed line (:mod:`engine_model.physics.
-                   maps`), scaled by ``1 + slope``. The isentropic head (hence the pressure
-                   ratio) and the work change together, the efficiency does not. A flatter
-                   line (``slope < 0``) holds the pressure ratio as the working point moves
-                   along the speed line, e.g. when the bypass nozzle chokes between take-off
-                   and cruise at the same corrected fan speed. The generic map's slope is a
-                   class-typical value (``DesignSpec.fan_map``); the real blading's, set by
-                   its exit metal angles and stage matching (Cumpsty, *Compressor
-                   Aerodynamics*, ch. 4; Dixon & Hall, ch. 5), is what the adaptation to a
-                   real engine estimates (the speed-line shape of map scaling: Kurzke,
-                   ASME GT2011). At the design flow coefficient (SLS full power) nothing
-                   moves.
-design_scaling     the constant part of a component's map adaptation (option ``component``):
-                   efficiency and flow scalers added to its health modifiers. On one engine
-                   it is indistinguishable from theta; over a fleet it is the level every
-                   engine shares (a model-engine mismatch), while theta is each engine's own
-                   (:mod:`calibration.adaptation` fits the two apart). Not a candidate of the
-                   discrepancy loop, whose theta per cycle would absorb it entirely.
-sensor_bias        a sensor offset and gain on one channel: ``x <- x (1 + gain) + offset``.
-sensor_drift       a sensor whose gain drifts with use: ``x <- x (1 + rate cycle)``; the
-                   flight ``cycle`` is a per-row context parameter.
-dynamics           (series) spool and thermal dynamics that the steady model lacks: the
-                   spool speeds, pressures and flows lag the steady state with the rotor
-                   time constant ``tau_spool`` and the temperatures with the heat-soak time
-                   constant ``tau_thermal`` (first-order lags integrated exactly for an
-                   input linear between samples).
-=================  =====================================================================
+==================  =====================================================================
+effect              physics
+==================  =====================================================================
+customer_bleed      air taken from the HPC exit for the aircraft (cabin, anti-ice):
+                    ``W = (f0 + f_alt alt/10,000 ft) W25``; typical airliner ECS demand is
+                    1-2 % of core flow at cruise (Walsh & Fletcher, *Gas Turbine
+                    Performance*, 2nd ed., ch. 5).
+hp_offtake          shaft power taken from the HP spool by the accessory gearbox
+                    (generators, hydraulic pumps), ``P`` [kW]; 100-250 kW for a twin of
+                    this class.
+reynolds            Reynolds-number effect on the turbomachinery at altitude. The Reynolds
+                    number index of a component, ``RNI = (P_in/P_in_des)
+                    (T_in/T_in_des)^-1.2`` (Re ~ rho U L / mu with U ~ sqrt(T) at constant
+                    corrected speed and mu ~ T^0.7), scales the loss: ``(1 - eta) = (1 -
+                    eta_RNI=1) RNI^-n`` (Wassell, ASME J. Eng. Power 90, 1968; Walsh &
+                    Fletcher ch. 4 give n = 0.1-0.2). The efficiency modifier changes by
+                    ``-(1/eta_des - 1)(RNI^-n - 1)`` and the flow modifier by ``flow_ratio``
+                    times that.
+inlet_loss          an extra intake total-pressure loss (damage, ice, a poor intake lip):
+                    ``P2 <- P2 (1 - dp - dp_ram Mach^2)``.
+nozzle_area         a change of the core (``dA8``) and bypass (``dA18``) nozzle throat areas,
+                    fractions (erosion, a mis-rigged variable nozzle, a trim).
+map_scaling         map adaptation of one component (option ``component``: fan, LPC, HPC,
+                    HPT, LPT): its efficiency and flow scalers vary with its corrected speed,
+                    ``d_eff = eff_1 dn + eff_2 dn^2`` and ``d_flow = flow_1 dn + flow_2 dn^2``
+                    with ``dn = n_corr - 1`` (``n_corr``: corrected speed relative to the SLS
+                    design point), added to the component's modifiers. A generic map scaled
+                    to the design point is right there and drifts away from the real
+                    component's towards part power; performance engineers correct it with
+                    scaling factors that depend on the operating point ("modification
+                    factors", Stamatis, Mathioudakis & Papailiou, ASME J. Eng. Gas Turbines
+                    Power 112, 1990; scaling factors along the operating line, Li & Pilidis,
+                    2010; Kurzke, ASME GT2011 on which shapes a map can physically take;
+                    polynomial map tuning, Tsoutsanis et al., Applied Energy 135, 2014). The
+                    constant term is left out: at the design speed the scaler is theta itself
+                    (the health parameter), so the effect is the shape, not the level.
+map_slope           the slope of one compressor's speed lines (option ``component``: fan,
+                    LPC, HPC): the slope ``kappa`` of its map's work line, ``psi / psi_des =
+                    1 - kappa (phi - 1)`` along a speed line (:mod:`engine_model.physics.
+                    maps`), scaled by ``1 + slope``. The isentropic head (hence the pressure
+                    ratio) and the work change together, the efficiency does not. A flatter
+                    line (``slope < 0``) holds the pressure ratio as the working point moves
+                    along the speed line, e.g. when the bypass nozzle chokes between take-off
+                    and cruise at the same corrected fan speed. The generic map's slope is a
+                    class-typical value (``DesignSpec.fan_map``); the real blading's, set by
+                    its exit metal angles and stage matching (Cumpsty, *Compressor
+                    Aerodynamics*, ch. 4; Dixon & Hall, ch. 5), is what the adaptation to a
+                    real engine estimates (the speed-line shape of map scaling: Kurzke,
+                    ASME GT2011). At the design flow coefficient (SLS full power) nothing
+                    moves.
+map_pressure_ratio  the pressure-ratio scaler of one compressor's map (option
+                    ``component``: fan, LPC, HPC), the third classic map scaler beside flow
+                    and efficiency (Kurzke, ASME 96-GT-164; C-MAPSS's ``<c>_PR_mod``):
+                    the isentropic head of every map point, and the work with it at the
+                    map's efficiency, times ``1 + d_pr``, ``d_pr = pr_0 + pr_1 dn + pr_2
+                    dn^2`` (:func:`engine_model.physics.components.compressor`). Unlike
+                    the efficiency and flow scalers it has no health parameter beside it,
+                    so its level ``pr_0`` is part of the effect. At the held corrected fan
+                    speed a lower fan head gives less pressure (``P15``, ``P30`` down) for
+                    less work (``Wf``, ``T50`` down).
+design_scaling      the constant part of a component's map adaptation (option ``component``):
+                    efficiency and flow scalers added to its health modifiers. On one engine
+                    it is indistinguishable from theta; over a fleet it is the level every
+                    engine shares (a model-engine mismatch), while theta is each engine's own
+                    (:mod:`calibration.adaptation` fits the two apart). Not a candidate of the
+                    discrepancy loop, whose theta per cycle would absorb it entirely.
+sensor_bias         a sensor offset and gain on one channel: ``x <- x (1 + gain) + offset``.
+sensor_drift        a sensor whose gain drifts with use: ``x <- x (1 + rate cycle)``; the
+                    flight ``cycle`` is a per-row context parameter.
+dynamics            (series) spool and thermal dynamics that the steady model lacks: the
+                    spool speeds, pressures and flows lag the steady state with the rotor
+                    time constant ``tau_spool`` and the temperatures with the heat-soak time
+                    constant ``tau_thermal`` (first-order lags integrated exactly for an
+                    input linear between samples).
+==================  =====================================================================
 
 Signatures
 ----------
@@ -97,6 +107,10 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
   where a flatter line keeps more pressure ratio (``P15``, ``P30`` up) and the core runs
   hotter for the larger work (``Wf``, ``T50`` up); the booster runs at a lower flow
   coefficient, where a flatter line gives less pressure rise (``P24``, ``T24`` down).
+- map_pressure_ratio: at the held corrected fan speed a fan map with 1 % less head gives
+  less pressure (``P15``, ``P30`` down) for less work (``Wf``, ``T50`` down); a booster's
+  lower head lowers ``P24`` and ``T24``; the HPC's pressure ratio is held by the turbines'
+  flow capacities, so its lower head is made up by a faster core (``Nc`` up).
 - design_scaling: a lower efficiency or flow of a component (both at -1 %) at both points:
   for a compressor or turbine the burner must run hotter (``Wf``, ``T50`` up); a less
   efficient fan raises less pressure at the held fan speed (``P15``, ``P30`` down); the
@@ -324,6 +338,47 @@ class MapSlope(ComponentEffect):
     def apply(self, hook, value, p, ctx):
         if hook == f"{self.component}_slope_mod":
             return value + p["slope"]
+        return value
+
+
+@register
+class MapPressureRatio(ComponentEffect):
+    """A compressor map's pressure-ratio scaler and its change with corrected speed
+    (option ``component``)."""
+
+    name = "map_pressure_ratio"
+    description = ("Pressure-ratio scaling of one compressor's map (option component: fan, "
+                   "LPC, HPC): d_pr = pr_0 + pr_1 dn + pr_2 dn^2, dn = n_corr - 1.")
+    params = (
+        Param("pr_0", "-", 0.0, "pressure-ratio (isentropic head) scaler at the design speed",
+              -0.01, (-0.03, 0.03), valid=(-0.10, 0.10)),
+        Param("pr_1", "-", 0.0, "pressure-ratio scaler per unit of (n_corr - 1)", 0.05,
+              (-0.2, 0.2), valid=(-1.0, 1.0)),
+        Param("pr_2", "-", 0.0, "pressure-ratio scaler per unit of (n_corr - 1)^2", 0.2,
+              (-1.0, 1.0), valid=(-5.0, 5.0)),
+    )
+    # every parameter at its typical size: the measured channels that move by more than
+    # 0.1 % at SLS or CRZ (tests/test_effects.py checks them) and the signs at both points.
+    # The controller holds the corrected fan speed, so a fan giving 1 % less head raises
+    # less pressure (P15, P30 down) and takes less work (Wf, T50 down). The HPC's pressure
+    # ratio is set by the turbines' flow capacities: a lower head is made up by speed (Nc
+    # up), and little else moves.
+    MOVES = {
+        "fan": ("Wf", "T40", "T48", "T50", "P15", "P21", "Ps30", "P30", "P40", "P50"),
+        "LPC": ("P24",),
+        "HPC": ("Nc",),
+    }
+    SIGNS = {"fan": {"Wf": -1, "P15": -1, "P30": -1, "T50": -1},
+             "LPC": {"P24": -1, "T24": -1},
+             "HPC": {"Nc": +1}}
+    SIGNED_AT = ("SLS", "CRZ")
+
+    EXAMPLE = "fan,pr_0=-0.01"
+
+    def apply(self, hook, value, p, ctx):
+        if hook == f"{self.component}_pr_mod":
+            dn = ctx["n_corr"] - 1.0
+            return value + p["pr_0"] + p["pr_1"] * dn + p["pr_2"] * dn * dn
         return value
 
 

@@ -103,7 +103,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     wc2 = d.fan.flow(n_fan, beta_fan, fan_flow)
     P2 = hook("P2", Pt0 * (1.0 - d.dp_inlet * (wc2 / d.wc2_des) ** 2), Pt0=Pt0)
     fan = components.compressor(d.fan, T2, P2, n_fan, beta_fan, fan_eff, fan_flow,
-                                slope_mod=hook("fan_slope_mod", 0.0, **at2))
+                                slope_mod=hook("fan_slope_mod", 0.0, **at2),
+                                pr_mod=hook("fan_pr_mod", 0.0, **at2))
     W2, T21, P21 = fan["W"], fan["T_out"], fan["P_out"]
 
     # --- LPC (booster) on the core stream ---
@@ -112,7 +113,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     lpc = components.compressor(d.lpc, T21, P21, n_lpc, beta_lpc,
                                 hook("LPC_eff_mod", lpc_eff, **at21),
                                 hook("LPC_flow_mod", lpc_flow, **at21),
-                                slope_mod=hook("LPC_slope_mod", 0.0, **at21))
+                                slope_mod=hook("LPC_slope_mod", 0.0, **at21),
+                                pr_mod=hook("LPC_pr_mod", 0.0, **at21))
     W22, T24, P24 = lpc["W"], lpc["T_out"], lpc["P_out"]
 
     # --- variable bleed valves: booster-exit air dumped into the bypass duct at part power ---
@@ -139,7 +141,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     hpc = components.compressor(d.hpc, T25, P25, n_hpc, beta_hpc,
                                 hook("HPC_eff_mod", hpc_eff, **at25),
                                 hook("HPC_flow_mod", hpc_flow, **at25),
-                                slope_mod=hook("HPC_slope_mod", 0.0, **at25))
+                                slope_mod=hook("HPC_slope_mod", 0.0, **at25),
+                                pr_mod=hook("HPC_pr_mod", 0.0, **at25))
     W25, T30, P30 = hpc["W"], hpc["T_out"], hpc["P_out"]
     W31 = d.f31 * W25
     W32 = d.f32 * W25
