@@ -447,13 +447,15 @@ def summarise(runs: pd.DataFrame) -> str:
                              f"{int((rel < 0).sum())} of {len(rel)}) | {len(rel)} pairs | - |")
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
         fl = fl.assign(variant=fl["variant"].fillna("") if "variant" in fl else "")
-        plain = fl[fl["variant"] == ""]
-        if "constant" in fl.columns and len(plain):
-            lines.append(f"| {subset} | constant floor | {plain['constant'].mean():.2f} ± "
-                         f"{plain['constant'].std(ddof=1):.2f} | {len(plain)} folds | - |")
-        if "life" in fl.columns and plain["life"].notna().any():
-            lines.append(f"| {subset} | life floor | {plain['life'].mean():.2f} ± "
-                         f"{plain['life'].std(ddof=1):.2f} | {len(plain)} folds | - |")
+        # the constant and life floors read no calibration: one per fold of each partition
+        part = fl["variant"].str.extract(r"(fold seed \d+)$", expand=False).fillna("")
+        for label, h in fl.assign(partition=part).groupby("partition", sort=True):
+            h = h.drop_duplicates("fold")
+            tag = f", {label}" if label else ""
+            for col, name in (("constant", "constant floor"), ("life", "life floor")):
+                if col in h.columns and h[col].notna().any():
+                    lines.append(f"| {subset} | {name}{tag} | {h[col].mean():.2f} ± "
+                                 f"{h[col].std(ddof=1):.2f} | {len(h)} folds | - |")
         for variant, h in fl.groupby("variant", sort=True):
             for col, name in (("hi_lookup", "HI lookup floor"), ("physics", "physics floor")):
                 if col in h.columns and h[col].notna().any():
