@@ -52,8 +52,9 @@ def compressor(cmap, T_in, P_in, n, beta, eff_mod=0.0, flow_mod=0.0, far=0.0, sl
     ``(1 + pr_mod)`` times the map's, and the work with it at the map's efficiency
     (``dh = (1 + pr_mod) work / (1 + eff_mod)``). Written on the head rather than on
     ``PR - 1`` (GasTurb's form), to which it is equal to first order in ``PR - 1``, so that
-    the efficiency of a map point is the map's and the stall margin at a map point is
-    unchanged. 0 (the default) leaves the expression graph as it is.
+    the efficiency of a map point stays the map's and the surge line scales with the map
+    (the stall margin at a map point moves only through the curvature of ``PR`` in the
+    head). 0 (the default) leaves the expression graph as it is.
     """
     def scaled(x):
         return x if isinstance(pr_mod, (int, float)) and pr_mod == 0 else x * (1.0 + pr_mod)
