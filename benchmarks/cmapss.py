@@ -198,6 +198,11 @@ def floors(df, fold, held, hi_fn) -> dict:
     return out
 
 
+#: the label of a run or floor on another partition of the folds (``--fold-seed``), read
+#: back by :func:`summarise`
+PARTITION = "fold seed {}"
+
+
 def pooled_units(df, pool, args) -> tuple:
     """``df`` with the training units of the subsets ``pool`` appended (calibrated with the
     same variant; unit ``u`` of the i-th pooled subset becomes ``100000 (i + 1) + u``), and
@@ -318,7 +323,7 @@ def main(argv=None) -> int:
             variant["noise"] = noise_tag
             suffix += f" {noise_tag}"
         # what every run's label ends with: the pooled units, another partition of the folds
-        partition = f", fold seed {args.fold_seed}" if args.fold_seed else ""
+        partition = f", {PARTITION.format(args.fold_seed)}" if args.fold_seed else ""
         tail = (" + " + ", ".join(pool) + " units" if pool else "") + partition
         folds = list(enumerate(unit_folds(units, args.folds, args.fold_seed)))
         for k, fold in (reversed(folds) if args.reverse else folds):
@@ -448,7 +453,8 @@ def summarise(runs: pd.DataFrame) -> str:
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
         fl = fl.assign(variant=fl["variant"].fillna("") if "variant" in fl else "")
         # the constant and life floors read no calibration: one per fold of each partition
-        part = fl["variant"].str.extract(r"(fold seed \d+)$", expand=False).fillna("")
+        pattern = "(" + PARTITION.format(r"\d+") + ")$"
+        part = fl["variant"].str.extract(pattern, expand=False).fillna("")
         for label, h in fl.assign(partition=part).groupby("partition", sort=True):
             h = h.drop_duplicates("fold")
             tag = f", {label}" if label else ""
