@@ -420,10 +420,39 @@ def ensemble_rmse(h: pd.DataFrame) -> pd.Series:
     return pd.Series(out, dtype=float)
 
 
+def split_partition(label: str) -> tuple[str, int]:
+    """A run's label without its partition of the folds, and that partition's fold seed (0,
+    the default partition, carries no label)."""
+    tag = ", " + PARTITION.format("")
+    head, sep, seed = label.rpartition(tag)
+    return (head, int(seed)) if sep and seed.isdigit() else (label, 0)
+
+
+def paired(other: pd.DataFrame, ref: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """The relative difference in % of two predictors' runs on the same units, run by run
+    (same partition, fold and seed) and ensemble by ensemble (same partition and fold)."""
+    runs, ensembles = [], []
+    for part, o in other.groupby("partition"):
+        r = ref[ref["partition"] == part]
+        pair = pd.concat([o.set_index(["fold", "seed"])["rmse"],
+                          r.set_index(["fold", "seed"])["rmse"]], axis=1, join="inner")
+        runs.append((pair.iloc[:, 0] / pair.iloc[:, 1] - 1.0) * 100)
+        eo, er = ensemble_rmse(o), ensemble_rmse(r)
+        common = eo.index.intersection(er.index)
+        ensembles.append((eo[common] / er[common] - 1.0) * 100)
+    return pd.concat(runs, ignore_index=True), pd.concat(ensembles, ignore_index=True)
+
+
+def paired_cell(rel: pd.Series) -> str:
+    return (f"{rel.mean():+.1f} % ± {rel.std(ddof=1):.1f} % (better in "
+            f"{int((rel < 0).sum())} of {len(rel)})")
+
+
 def summarise(runs: pd.DataFrame) -> str:
     """Mean ± std of the last-cycle RMSE over folds x seeds per subset, model and inputs, the
-    seeds' ensemble per fold, the paired hybrid / data-driven ratio, the floors, and the
-    published figures."""
+    seeds' ensemble per fold, the paired hybrid / data-driven ratio (run by run and ensemble
+    by ensemble), the same over every partition of the folds where a predictor ran on more
+    than one, the floors, and the published figures."""
     lines = ["| subset | predictor | RMSE (CV, mean ± std) | runs | median s / run |",
              "|---|---|---|---|---|"]
     for subset, g in runs.groupby("subset", sort=True):
@@ -436,20 +465,46 @@ def summarise(runs: pd.DataFrame) -> str:
             if len(ens):
                 lines.append(f"| {subset} | {model} {inputs}, ensemble of the seeds | "
                              f"{ens.mean():.2f} ± {ens.std(ddof=1):.2f} | {len(ens)} folds | - |")
+        split = nets["inputs"].map(split_partition)
+        nets = nets.assign(base=split.str[0], partition=split.str[1])
         for model, h in nets.groupby("model", sort=True):
-            pair = h.pivot_table(index=["fold", "seed"], columns="inputs", values="rmse")
-            refs = [c for c in pair.columns if c.startswith("data-driven")]
-            for other in [c for c in pair.columns if not c.startswith("data-driven")]:
+            labels = list(dict.fromkeys(h["inputs"]))
+            refs = [c for c in labels if c.startswith("data-driven")]
+            for other in [c for c in labels if not c.startswith("data-driven")]:
                 # against the data-driven network of the same units and folds (the longest
                 # data-driven label whose ending, pooled units or fold seed, ``other`` shares)
                 ends = [r for r in refs if other.endswith(r[len("data-driven"):])]
                 if not ends:
                     continue
                 ref = max(ends, key=len)
-                rel = (pair[other] / pair[ref] - 1.0).dropna() * 100
+                rel, rel_ens = paired(h[h["inputs"] == other], h[h["inputs"] == ref])
                 lines.append(f"| {subset} | {model}: {other} vs {ref}, paired | "
-                             f"{rel.mean():+.1f} % ± {rel.std(ddof=1):.1f} % (better in "
-                             f"{int((rel < 0).sum())} of {len(rel)}) | {len(rel)} pairs | - |")
+                             f"{paired_cell(rel)} | {len(rel)} pairs | - |")
+                if len(rel_ens):
+                    lines.append(f"| {subset} | {model}: {other} vs {ref}, ensembles paired | "
+                                 f"{paired_cell(rel_ens)} | {len(rel_ens)} folds | - |")
+            for base, b in h.groupby("base", sort=True):
+                parts = sorted(b["partition"].unique())
+                if len(parts) < 2:
+                    continue
+                name = f"{model} {base}, fold seeds {', '.join(map(str, parts))}"
+                ens = pd.concat([ensemble_rmse(q) for _, q in b.groupby("partition")])
+                lines.append(f"| {subset} | {name} | {b['rmse'].mean():.2f} ± "
+                             f"{b['rmse'].std(ddof=1):.2f} | {len(b)} | - |")
+                lines.append(f"| {subset} | {name}, ensemble of the seeds | {ens.mean():.2f} "
+                             f"± {ens.std(ddof=1):.2f} | {len(ens)} folds | - |")
+                ends = [r for r in h["base"].unique()
+                        if r.startswith("data-driven") and base.endswith(r[len("data-driven"):])]
+                if base.startswith("data-driven") or not ends:
+                    continue
+                ref = h[(h["base"] == max(ends, key=len)) & h["partition"].isin(parts)]
+                if ref["partition"].nunique() < len(parts):
+                    continue
+                rel, rel_ens = paired(b, ref)
+                lines.append(f"| {subset} | {name} vs data-driven, paired | "
+                             f"{paired_cell(rel)} | {len(rel)} pairs | - |")
+                lines.append(f"| {subset} | {name} vs data-driven, ensembles paired | "
+                             f"{paired_cell(rel_ens)} | {len(rel_ens)} folds | - |")
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
         fl = fl.assign(variant=fl["variant"].fillna("") if "variant" in fl else "")
         # the constant and life floors read no calibration: one per fold of each partition

@@ -1,0 +1,74 @@
+"""The C-MAPSS benchmark's table (``benchmarks/cmapss.py``): partitions of the folds read
+back from the labels, predictors paired run by run and ensemble by ensemble on the same
+units, and the rows over every partition."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "cmapss.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("cmapss_benchmark", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def runs_table(scale: float) -> pd.DataFrame:
+    """Two partitions x two folds x two seeds; the hybrid's errors on every held-out unit are
+    the data-driven network's times ``scale``."""
+    rows = []
+    rng = np.random.default_rng(0)
+    for part in (0, 1):
+        tag = f", fold seed {part}" if part else ""
+        for fold in (0, 1):
+            for seed in (0, 1):
+                deltas = {str(u): float(d) for u, d in enumerate(rng.normal(0, 10, 4))}
+                for name, k in (("data-driven", 1.0), ("hybrid-theta --params all", scale)):
+                    d = {u: k * v for u, v in deltas.items()}
+                    rows.append({"key": f"{part}{fold}{seed}{name}", "kind": "run",
+                                 "subset": "FD001", "fold": fold, "model": "dcnn",
+                                 "inputs": name + tag, "seed": seed, "seconds": 1.0,
+                                 "rmse": float(np.sqrt(np.mean(np.square(list(d.values()))))),
+                                 "deltas": d})
+    return pd.DataFrame(rows)
+
+
+def test_partition_read_back_from_the_label(bench):
+    label = "hybrid-theta --params all, adapted ccd7e93d --noise data"
+    assert bench.split_partition(label) == (label, 0)
+    tagged = f"{label}, {bench.PARTITION.format(12)}"
+    assert bench.split_partition(tagged) == (label, 12)
+    pooled = f"data-driven + FD001 units, {bench.PARTITION.format(1)}"
+    assert bench.split_partition(pooled) == ("data-driven + FD001 units", 1)
+
+
+def test_paired_runs_and_ensembles_on_the_same_units(bench):
+    runs = runs_table(0.8)
+    split = runs["inputs"].map(bench.split_partition)
+    runs = runs.assign(base=split.str[0], partition=split.str[1])
+    rel, rel_ens = bench.paired(runs[runs["base"] != "data-driven"],
+                                runs[runs["base"] == "data-driven"])
+    assert len(rel) == 8 and len(rel_ens) == 4  # 2 partitions x 2 folds (x 2 seeds)
+    np.testing.assert_allclose(rel, -20.0)
+    np.testing.assert_allclose(rel_ens, -20.0)
+
+
+def test_summary_pairs_each_partition_and_pools_them(bench):
+    table = bench.summarise(runs_table(1.1))
+    rows = {line.split(" | ")[1]: line for line in table.splitlines()[2:]}
+    one = ("dcnn: hybrid-theta --params all, fold seed 1 vs data-driven, fold seed 1, "
+           "ensembles paired")
+    assert "+10.0 % ± 0.0 % (better in 0 of 2)" in rows[one]
+    pooled = "dcnn hybrid-theta --params all, fold seeds 0, 1 vs data-driven, paired"
+    assert "+10.0 % ± 0.0 % (better in 0 of 8)" in rows[pooled]
+    assert "| 8 pairs |" in rows[pooled]
+    assert "dcnn data-driven, fold seeds 0, 1, ensemble of the seeds" in rows
