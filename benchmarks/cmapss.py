@@ -28,7 +28,11 @@ model's sensor estimates, which on a multi-condition file add as many columns as
 sensors and carry the condition more than the health), ``hybrid-theta-rel`` adds to that
 ``theta_rel``: θ̂ and the health index relative to the unit's own first cycles
 (:mod:`prognostics.flights`, causal; engines leave the factory different, and on FD002 the
-model's mismatch with NASA's engine lands in θ̂ as a per-unit offset). Each run is one line of
+model's mismatch with NASA's engine lands in θ̂ as a per-unit offset), ``hybrid-theta-mode``
+adds to ``hybrid-theta`` the failure mode, the direction cosines of θ̂'s change since the
+unit's first cycles, shrunk to 0 while that change is within three standard deviations of θ̂
+(:mod:`prognostics.flights`, causal; FD003 has two fault modes, HPC and fan, which θ̂'s
+change tells apart). Each run is one line of
 ``--work/runs.jsonl`` (resumed); the table goes to stdout and, with ``--results``, to
 ``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``.
 
@@ -64,7 +68,8 @@ PUBLISHED = {
 }
 INPUTS = {"data-driven": "w+cmapss", "hybrid": "w+cmapss+xs_hat+xv_hat+theta_hat",
           "hybrid-theta": "w+cmapss+theta_hat",
-          "hybrid-theta-rel": "w+cmapss+theta_hat+theta_rel"}
+          "hybrid-theta-rel": "w+cmapss+theta_hat+theta_rel",
+          "hybrid-theta-mode": "w+cmapss+theta_hat+mode"}
 MAX_RUL = 125.0
 MULTI_CONDITION = {"FD002", "FD004"}
 
