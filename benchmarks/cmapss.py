@@ -453,6 +453,45 @@ def paired_cell(rel: pd.Series) -> str:
             f"{int((rel < 0).sum())} of {len(rel)})")
 
 
+def reference(label: str, labels) -> str | None:
+    """The data-driven network ``label`` is compared with: among ``labels``, the longest
+    data-driven one whose ending (pooled units, partition) ``label`` shares; None for a
+    data-driven label or where there is none."""
+    if label.startswith("data-driven"):
+        return None
+    ends = [r for r in labels
+            if r.startswith("data-driven") and label.endswith(r[len("data-driven"):])]
+    return max(ends, key=len) if ends else None
+
+
+def across_partitions(subset: str, model: str, h: pd.DataFrame) -> list[str]:
+    """The rows of every predictor of ``h`` (one model's runs, with ``base`` and
+    ``partition`` columns) that ran on more than one partition of the folds: its runs and
+    its seeds' ensembles over all of them, and its pairs with data-driven where that ran on
+    the same partitions."""
+    lines = []
+    for base, b in h.groupby("base", sort=True):
+        parts = sorted(b["partition"].unique())
+        if len(parts) < 2:
+            continue
+        name = f"{model} {base}, fold seeds {', '.join(map(str, parts))}"
+        ens = pd.concat([ensemble_rmse(q) for _, q in b.groupby("partition")])
+        lines.append(f"| {subset} | {name} | {b['rmse'].mean():.2f} ± "
+                     f"{b['rmse'].std(ddof=1):.2f} | {len(b)} | - |")
+        lines.append(f"| {subset} | {name}, ensemble of the seeds | {ens.mean():.2f} "
+                     f"± {ens.std(ddof=1):.2f} | {len(ens)} folds | - |")
+        ref_base = reference(base, h["base"].unique())
+        ref = h[(h["base"] == ref_base) & h["partition"].isin(parts)]
+        if ref["partition"].nunique() < len(parts):
+            continue
+        rel, rel_ens = paired(b, ref)
+        lines.append(f"| {subset} | {name} vs data-driven, paired | "
+                     f"{paired_cell(rel)} | {len(rel)} pairs | - |")
+        lines.append(f"| {subset} | {name} vs data-driven, ensembles paired | "
+                     f"{paired_cell(rel_ens)} | {len(rel_ens)} folds | - |")
+    return lines
+
+
 def summarise(runs: pd.DataFrame) -> str:
     """Mean ± std of the last-cycle RMSE over folds x seeds per subset, model and inputs, the
     seeds' ensemble per fold, the paired hybrid / data-driven ratio (run by run and ensemble
@@ -474,42 +513,18 @@ def summarise(runs: pd.DataFrame) -> str:
         nets = nets.assign(base=split.str[0], partition=split.str[1])
         for model, h in nets.groupby("model", sort=True):
             labels = list(dict.fromkeys(h["inputs"]))
-            refs = [c for c in labels if c.startswith("data-driven")]
-            for other in [c for c in labels if not c.startswith("data-driven")]:
-                # against the data-driven network of the same units and folds (the longest
-                # data-driven label whose ending, pooled units or fold seed, ``other`` shares)
-                ends = [r for r in refs if other.endswith(r[len("data-driven"):])]
-                if not ends:
+            for other in labels:
+                # against the data-driven network of the same units and folds
+                ref = reference(other, labels)
+                if ref is None:
                     continue
-                ref = max(ends, key=len)
                 rel, rel_ens = paired(h[h["inputs"] == other], h[h["inputs"] == ref])
                 lines.append(f"| {subset} | {model}: {other} vs {ref}, paired | "
                              f"{paired_cell(rel)} | {len(rel)} pairs | - |")
                 if len(rel_ens):
                     lines.append(f"| {subset} | {model}: {other} vs {ref}, ensembles paired | "
                                  f"{paired_cell(rel_ens)} | {len(rel_ens)} folds | - |")
-            for base, b in h.groupby("base", sort=True):
-                parts = sorted(b["partition"].unique())
-                if len(parts) < 2:
-                    continue
-                name = f"{model} {base}, fold seeds {', '.join(map(str, parts))}"
-                ens = pd.concat([ensemble_rmse(q) for _, q in b.groupby("partition")])
-                lines.append(f"| {subset} | {name} | {b['rmse'].mean():.2f} ± "
-                             f"{b['rmse'].std(ddof=1):.2f} | {len(b)} | - |")
-                lines.append(f"| {subset} | {name}, ensemble of the seeds | {ens.mean():.2f} "
-                             f"± {ens.std(ddof=1):.2f} | {len(ens)} folds | - |")
-                ends = [r for r in h["base"].unique()
-                        if r.startswith("data-driven") and base.endswith(r[len("data-driven"):])]
-                if base.startswith("data-driven") or not ends:
-                    continue
-                ref = h[(h["base"] == max(ends, key=len)) & h["partition"].isin(parts)]
-                if ref["partition"].nunique() < len(parts):
-                    continue
-                rel, rel_ens = paired(b, ref)
-                lines.append(f"| {subset} | {name} vs data-driven, paired | "
-                             f"{paired_cell(rel)} | {len(rel)} pairs | - |")
-                lines.append(f"| {subset} | {name} vs data-driven, ensembles paired | "
-                             f"{paired_cell(rel_ens)} | {len(rel_ens)} folds | - |")
+            lines += across_partitions(subset, model, h)
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
         fl = fl.assign(variant=fl["variant"].fillna("") if "variant" in fl else "")
         # the constant and life floors read no calibration: one per fold of each partition
