@@ -1,6 +1,7 @@
-"""The C-MAPSS benchmark's table (``benchmarks/cmapss.py``): partitions of the folds read
-back from the labels, predictors paired run by run and ensemble by ensemble on the same
-units, and the rows over every partition."""
+"""The C-MAPSS benchmarks' tables: partitions of the folds read back from the labels,
+predictors paired run by run and ensemble by ensemble on the same units, the rows over every
+partition (``benchmarks/cmapss.py``), and the units split by fault mode
+(``benchmarks/cmapss_modes.py``)."""
 
 import importlib.util
 import sys
@@ -72,3 +73,40 @@ def test_summary_pairs_each_partition_and_pools_them(bench):
     assert "+10.0 % ± 0.0 % (better in 0 of 8)" in rows[pooled]
     assert "| 8 pairs |" in rows[pooled]
     assert "dcnn data-driven, fold seeds 0, 1, ensemble of the seeds" in rows
+
+
+@pytest.fixture(scope="module")
+def modes():
+    spec = importlib.util.spec_from_file_location("cmapss_modes", SCRIPT.with_name(
+        "cmapss_modes.py"))
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_fault_groups_split_two_modes_of_change(modes):
+    """Units whose θ̂ moves in one of two directions over life are split by direction, the
+    same way every time, whatever their order."""
+    rng = np.random.default_rng(1)
+    rows = []
+    for unit in range(1, 21):
+        hpc = unit % 2 == 0
+        life = 150 + 10 * unit
+        drift = np.array([-1.0, 0.1]) if hpc else np.array([0.1, -1.0])  # HPC_eff, LPT_eff
+        for cycle in range(1, life + 1):
+            theta = drift * 0.01 * cycle / life + rng.normal(0, 1e-4, 2)
+            rows.append({"unit": unit, "cycle": cycle, "HPC_eff_mod_hat": theta[0],
+                         "LPT_eff_mod_hat": theta[1], "fan_eff_mod_hat": np.nan})
+    features = pd.DataFrame(rows)
+    change = modes.life_change(features)
+    assert list(change.columns) == ["HPC_eff", "LPT_eff", "life"]  # fan_eff: not estimated
+    assert change.loc[2, "life"] == 170
+    # medians of the last and first 20 cycles of 170: cycles 160.5 and 10.5, in %
+    np.testing.assert_allclose(change.loc[2, "HPC_eff"], -(160.5 - 10.5) / 170, atol=0.02)
+    group = modes.fault_groups(change)
+    even = group[change.index % 2 == 0]
+    assert even.nunique() == 1 and group[change.index % 2 == 1].nunique() == 1
+    assert group.nunique() == 2
+    shuffled = change.sample(frac=1.0, random_state=0)
+    np.testing.assert_array_equal(modes.fault_groups(shuffled).sort_index(), group)
