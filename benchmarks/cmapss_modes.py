@@ -58,10 +58,10 @@ def two_means(x: np.ndarray, iterations: int = 100) -> np.ndarray:
     d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
     i, j = np.unravel_index(np.argmax(d), d.shape)
     centres = x[[min(i, j), max(i, j)]]
-    labels = np.zeros(len(x), dtype=int)
+    labels = None
     for _ in range(iterations):
         new = np.argmin(np.linalg.norm(x[:, None, :] - centres[None], axis=2), axis=1)
-        if np.array_equal(new, labels) and _:
+        if labels is not None and np.array_equal(new, labels):
             break
         labels = new
         centres = np.stack([x[labels == k].mean(axis=0) for k in (0, 1)])
