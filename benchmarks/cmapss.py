@@ -410,19 +410,24 @@ def main(argv=None) -> int:
     return 0
 
 
-def ensemble_rmse(h: pd.DataFrame) -> pd.Series:
-    """Per fold with every seed done, the last-cycle RMSE of the seeds' mean prediction: the
-    held-out units and their truths are the same for every seed of a fold, so the ensemble's
-    error on a unit is the mean of the seeds' errors ``Δ = RUL - RUL_pred`` (each prediction
-    capped like the targets)."""
+def ensemble_deltas(h: pd.DataFrame) -> dict:
+    """Per fold with every seed done, the seeds' mean prediction's error on each held-out unit:
+    the held-out units and their truths are the same for every seed of a fold, so the
+    ensemble's error on a unit is the mean of the seeds' errors ``Δ = RUL - RUL_pred`` (each
+    prediction capped like the targets). ``{fold: Series indexed by unit}``."""
     out = {}
     n_seeds = h["seed"].nunique()
     for fold, g in h.groupby("fold"):
-        if len(g) < max(n_seeds, 2):
-            continue
-        deltas = pd.DataFrame(list(g["deltas"])).mean(axis=0)
-        out[fold] = float(np.sqrt(np.mean(deltas.to_numpy(float) ** 2)))
-    return pd.Series(out, dtype=float)
+        if len(g) >= max(n_seeds, 2):
+            out[fold] = pd.DataFrame(list(g["deltas"])).mean(axis=0)
+    return out
+
+
+def ensemble_rmse(h: pd.DataFrame) -> pd.Series:
+    """Per fold with every seed done, the last-cycle RMSE of the seeds' mean prediction
+    (:func:`ensemble_deltas`)."""
+    return pd.Series({fold: float(np.sqrt(np.mean(d.to_numpy(float) ** 2)))
+                      for fold, d in ensemble_deltas(h).items()}, dtype=float)
 
 
 def split_partition(label: str) -> tuple[str, int]:

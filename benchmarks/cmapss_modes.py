@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cmapss import split_partition  # noqa: E402
+from cmapss import ensemble_deltas, split_partition  # noqa: E402
 from run_cache import read_runs  # noqa: E402
 
 #: cycles at each end of a unit's life whose median θ̂ gives its change over life (C-MAPSS's
@@ -79,17 +78,18 @@ def fault_groups(change: pd.DataFrame) -> pd.Series:
 
 
 def ensemble_errors(runs: list[dict], subset: str, inputs: list[str]) -> pd.DataFrame:
-    """One row per predictor, partition, fold and held-out unit: the seeds' mean error."""
-    acc = defaultdict(list)
-    for r in {r["key"]: r for r in runs}.values():
-        if r.get("kind") != "run" or r["subset"] != subset:
-            continue
-        base, part = split_partition(r["inputs"])
-        if base in inputs:
-            for unit, delta in r["deltas"].items():
-                acc[(base, part, r["fold"], int(unit))].append(delta)
-    return pd.DataFrame([{"inputs": k[0], "partition": k[1], "fold": k[2], "unit": k[3],
-                          "error": float(np.mean(v))} for k, v in acc.items()])
+    """One row per predictor, partition, fold and held-out unit: the seeds' mean error
+    (:func:`cmapss.ensemble_deltas`, folds with every seed done)."""
+    nets = pd.DataFrame([r for r in {r["key"]: r for r in runs}.values()
+                         if r.get("kind") == "run" and r["subset"] == subset])
+    split = nets["inputs"].map(split_partition)
+    nets = nets.assign(base=split.str[0], partition=split.str[1])
+    rows = []
+    for (base, part), h in nets[nets["base"].isin(inputs)].groupby(["base", "partition"]):
+        for fold, deltas in ensemble_deltas(h).items():
+            rows += [{"inputs": base, "partition": part, "fold": fold, "unit": int(unit),
+                      "error": float(err)} for unit, err in deltas.items()]
+    return pd.DataFrame(rows)
 
 
 def main(argv=None) -> int:
