@@ -250,7 +250,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data-dir", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/cmapss"))
     ap.add_argument("--subsets", default="FD001,FD002,FD003,FD004")
-    ap.add_argument("--models", default="dcnn")
+    ap.add_argument("--models", default=None,
+                    help="comma-separated model names (default: dcnn; with --report, every "
+                    "model in the cache, so that the committed cache keeps every run)")
     ap.add_argument("--inputs", default="data-driven,hybrid")
     ap.add_argument("--params", default="default",
                     help="the health parameters calibrated for the hybrid inputs (hyprog "
@@ -284,6 +286,10 @@ def main(argv=None) -> int:
                     help="once the configuration is chosen: train on every training unit and "
                     "score NASA's test files (test_FD00x.txt, RUL_FD00x.txt), when present")
     args = ap.parse_args(argv)
+    if args.models is None:
+        cached = read_runs(args.work / "runs.jsonl") if args.report else []
+        args.models = ",".join(dict.fromkeys(r["model"] for r in cached
+                                             if r["kind"] == "run")) or "dcnn"
 
     from engine_model.datasets import read_dataset
     from prognostics.cross_validation import truncate_units, unit_folds
