@@ -1,0 +1,44 @@
+"""The adaptation benchmark's FD001 fault signature (``benchmarks/adaptation.py``): how far the
+HPC parameters move against the others, and its bootstrap interval over units."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "adaptation.py"
+COLUMNS = ["fan_eff_mod", "HPC_eff_mod", "HPC_flow_mod", "HPT_eff_mod", "LPT_eff_mod"]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("adaptation_benchmark", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_signature_is_the_smaller_hpc_median_over_the_largest_other(bench):
+    change = pd.DataFrame([[-0.2, -0.6, -1.0, 0.1, 0.0],
+                           [-0.3, -0.5, -0.9, -0.25, 0.05],
+                           [0.4, -0.7, -1.1, -0.3, -0.1]], columns=COLUMNS)
+    # medians: fan -0.2, HPC eff -0.6, HPC flow -1.0, HPT -0.25, LPT 0.0
+    assert bench.hpc_signature(change) == pytest.approx(0.6 / 0.25)
+
+
+def test_signature_interval_is_seeded_and_brackets_a_clear_signature(bench):
+    rng = np.random.default_rng(1)
+    n = 60
+    change = pd.DataFrame({"fan_eff_mod": rng.normal(-0.2, 0.1, n),
+                           "HPC_eff_mod": rng.normal(-0.6, 0.1, n),
+                           "HPC_flow_mod": rng.normal(-0.9, 0.1, n),
+                           "HPT_eff_mod": rng.normal(-0.2, 0.1, n),
+                           "LPT_eff_mod": rng.normal(0.0, 0.1, n)})
+    lo, hi = bench.signature_interval(change, n=400, seed=3)
+    assert (lo, hi) == bench.signature_interval(change, n=400, seed=3)
+    assert lo < bench.hpc_signature(change) < hi
+    assert lo > 1.5 and hi < 6.0
