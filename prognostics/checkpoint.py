@@ -8,9 +8,11 @@ Layout of a model directory::
 ``model.json`` holds ``format`` (``"hyprog-prognostics"``), ``format_version``,
 ``hyprog_version``, the training ``config`` (model, inputs, window, stride, ``max_rul``,
 seeds, units ...), the input ``columns``, the ``scaler`` (minimum / maximum per column), the
-``conformal`` interval (or null) and per member its file, ``sha256``, seed, best epoch,
-parameter count and training history; then ``sha256``: the SHA-256 of the canonical JSON
-(sorted keys, no spaces) of everything else in the manifest.
+``conformal`` interval (or null), ``trained_with`` (torch's version, the device and torch's
+thread count: what the bits of a run depend on besides seed and data, :mod:`.training`; null
+in a model written before it was recorded) and per member its file, ``sha256``, seed, best
+epoch, parameter count and training history; then ``sha256``: the SHA-256 of the canonical
+JSON (sorted keys, no spaces) of everything else in the manifest.
 
 Loading refuses, with an :class:`InputError` naming the file:
 
@@ -102,6 +104,7 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
             "dropped_constant": list(model.info.get("dropped_constant", [])),
             "health_effects": list(model.info.get("health_effects", [])),
             "conformal": None if model.conformal is None else model.conformal.to_dict(),
+            "trained_with": model.info.get("trained_with"),
             "members": members}
     body["sha256"] = sha256_bytes(_canonical(body))
     return body, files
@@ -259,6 +262,7 @@ def load_model(path: str | os.PathLike) -> RulModel:
     _check_shapes(p / MANIFEST, config, len(columns), members)
     model = RulModel(config, columns, scaler, members, conformal,
                      info={"hyprog_version": version, "path": str(p),
-                           "dropped_constant": dropped, "health_effects": effects})
+                           "dropped_constant": dropped, "health_effects": effects,
+                           "trained_with": body.get("trained_with")})
     model.networks()  # weights must fit the recorded network
     return model

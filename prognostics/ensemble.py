@@ -174,6 +174,13 @@ class RulModel:
         return evaluate_predictions(pred), pred
 
 
+def trained_with(device: torch.device) -> dict:
+    """What a run's bits depend on besides the seed and the data (:mod:`.training`): torch's
+    version, the device and torch's CPU thread count. Recorded in the model's manifest."""
+    return {"torch": torch.__version__, "device": device.type,
+            "threads": torch.get_num_threads()}
+
+
 def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         seeds: Sequence[int] | None = None, quiet: bool = True,
         source: str = "table") -> RulModel:
@@ -192,7 +199,8 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
             members.append(train_member(prep, s, device, on_batch, on_epoch))
     model = RulModel(cfg, tuple(prep.columns), prep.scaler, members,
                      info={"dropped_constant": list(prep.dropped),
-                           "health_effects": list(prep.health_effects)})
+                           "health_effects": list(prep.health_effects),
+                           "trained_with": trained_with(device)})
     conf = prep.windows.get(CONFORMAL)
     if conf is not None and len(conf):
         with deterministic(device):

@@ -33,7 +33,8 @@ from a second generator seeded by the seed + 1 (a CPU ``torch.Generator``, also 
 on CUDA), dropout masks (DCNN) from torch's global generator seeded by the seed + 2 when the
 member starts, there are no DataLoader workers, and :func:`deterministic` switches on torch's
 deterministic algorithms (and deterministic cuBLAS / cuDNN on CUDA). Same seed, same data,
-same device and thread count -> the same weights and losses, bit for bit.
+same device and thread count -> the same weights and losses, bit for bit (a model's manifest
+records them: ``trained_with``, :mod:`.checkpoint`).
 
 Device: ``auto`` is CUDA when available, else CPU; ``cuda`` without a GPU is an error. On CPU
 torch's own thread count is used (both cores of a 2-core machine by default).

@@ -198,7 +198,14 @@ def test_checkpoint_round_trip(trained, tmp_path):
     body = json.loads((path / MANIFEST).read_text())
     assert body["config"]["window"] == 8 and body["columns"] == list(m.columns)
     assert body["hyprog_version"] and body["scaler"]["columns"] == list(m.columns)
+    # what the bits depend on besides seed and data (prognostics.training)
+    # (the thread count of the fixture's training, which the tests' fixtures may set)
+    assert body["trained_with"]["torch"] == torch.__version__
+    assert body["trained_with"]["device"] == "cpu"
+    assert isinstance(body["trained_with"]["threads"], int) \
+        and body["trained_with"]["threads"] >= 1
     back = load_model(path)
+    assert back.info["trained_with"] == body["trained_with"]
     assert back.columns == m.columns and back.config == m.config
     assert back.conformal == m.conformal
     assert back.scaler.to_dict() == m.scaler.to_dict()
@@ -276,6 +283,26 @@ def resign_manifest(d, **changes):
     canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
     body["sha256"] = sha256_bytes(canonical.encode())
     (d / MANIFEST).write_text(json.dumps(body))
+
+
+def test_the_model_records_the_thread_count_it_was_trained_with(make_features,
+                                                                torch_one_thread):
+    df, meta = make_features()
+    m = fit(df, meta, TrainConfig(model="fnn", inputs="data-driven", epochs=1, **TINY))
+    assert m.info["trained_with"] == {"torch": torch.__version__, "device": "cpu",
+                                      "threads": 1}
+
+
+def test_a_model_written_before_trained_with_was_recorded_loads(trained, tmp_path):
+    _, path, _ = trained
+    d = _copy(path, tmp_path)
+    body = json.loads((d / MANIFEST).read_text())
+    body.pop("trained_with")
+    body.pop("sha256")
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    body["sha256"] = sha256_bytes(canonical.encode())
+    (d / MANIFEST).write_text(json.dumps(body))
+    assert load_model(d).info["trained_with"] is None
 
 
 def test_foreign_files_are_refused(trained, tmp_path):
