@@ -166,8 +166,6 @@ def train_and_score(df, meta, cfg, held) -> dict:
     """One training run of ``cfg`` scored at the held-out units' last cycles: the cache
     record's fields. It carries torch's thread count: a run is reproducible bit for bit only
     at the same count (prognostics.training)."""
-    import torch
-
     from prognostics.cross_validation import last_cycle_scores
     from prognostics.ensemble import fit
 
@@ -180,7 +178,7 @@ def train_and_score(df, meta, cfg, held) -> dict:
     return {"rmse": scores["rmse"], "score": scores["score"], "seconds": seconds,
             "best_epoch": m.best_epoch, "epochs_run": len(m.history),
             "batch_size": model.config.batch_size, "patience": model.config.patience,
-            "columns": len(model.columns), "threads": torch.get_num_threads(),
+            "columns": len(model.columns), "threads": model.info["trained_with"]["threads"],
             "deltas": {str(u): round(v["delta"], 3) for u, v in scores["units"].items()}}
 
 

@@ -274,11 +274,14 @@ def test_an_edited_manifest_is_refused(trained, tmp_path):
         load_model(d)
 
 
-def resign_manifest(d, **changes):
-    """Change manifest fields and re-sign it as the checkpoint docstring specifies (SHA-256 of
-    the canonical JSON: sorted keys, no spaces), as another hyprog would have written it."""
+def resign_manifest(d, drop=(), **changes):
+    """Change (or ``drop``) manifest fields and re-sign it as the checkpoint docstring specifies
+    (SHA-256 of the canonical JSON: sorted keys, no spaces), as another hyprog would have
+    written it."""
     body = json.loads((d / MANIFEST).read_text())
     body.pop("sha256")
+    for key in drop:
+        body.pop(key)
     body.update(changes)
     canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
     body["sha256"] = sha256_bytes(canonical.encode())
@@ -296,12 +299,7 @@ def test_the_model_records_the_thread_count_it_was_trained_with(make_features,
 def test_a_model_written_before_trained_with_was_recorded_loads(trained, tmp_path):
     _, path, _ = trained
     d = _copy(path, tmp_path)
-    body = json.loads((d / MANIFEST).read_text())
-    body.pop("trained_with")
-    body.pop("sha256")
-    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    body["sha256"] = sha256_bytes(canonical.encode())
-    (d / MANIFEST).write_text(json.dumps(body))
+    resign_manifest(d, drop=("trained_with",))
     assert load_model(d).info["trained_with"] is None
 
 
