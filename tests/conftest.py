@@ -16,6 +16,20 @@ REPO = Path(__file__).resolve().parents[1]
 REFERENCE_NAME = "cmapss-fd002-operating-points.csv"
 
 
+def load_script(path: Path, name: str):
+    """A script of the repository that is not a package module (a benchmark, a docs helper)
+    loaded as the module ``name`` and registered in ``sys.modules`` (dataclasses defined in
+    it look their module up there)."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
 def isa_t2_R(alt_ft, mach, dT_isa=0.0):
     """Fan-inlet total temperature [degR] for a flight condition at ISA + ``dT_isa`` [K]."""
     return float(t2_from_flight(float(alt_ft), float(mach), float(dT_isa))) * 1.8

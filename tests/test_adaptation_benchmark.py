@@ -1,25 +1,18 @@
 """The adaptation benchmark's FD001 fault signature (``benchmarks/adaptation.py``): how far the
 HPC parameters move against the others, and its bootstrap interval over units."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "adaptation.py"
+from .conftest import REPO, load_script
+
 COLUMNS = ["fan_eff_mod", "HPC_eff_mod", "HPC_flow_mod", "HPT_eff_mod", "LPT_eff_mod"]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("adaptation_benchmark", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(REPO / "benchmarks" / "adaptation.py", "adaptation_benchmark")
 
 
 def test_signature_is_the_smaller_hpc_median_over_the_largest_other(bench):

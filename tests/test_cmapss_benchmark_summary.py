@@ -3,24 +3,18 @@ predictors paired run by run and ensemble by ensemble on the same units, the row
 partition (``benchmarks/cmapss.py``), and the units split by fault mode
 (``benchmarks/cmapss_modes.py``)."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "cmapss.py"
+from .conftest import REPO, load_script
+
+SCRIPT = REPO / "benchmarks" / "cmapss.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("cmapss_benchmark", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT, "cmapss_benchmark")
 
 
 def runs_table(scale: float) -> pd.DataFrame:
@@ -77,12 +71,7 @@ def test_summary_pairs_each_partition_and_pools_them(bench):
 
 @pytest.fixture(scope="module")
 def modes():
-    spec = importlib.util.spec_from_file_location("cmapss_modes", SCRIPT.with_name(
-        "cmapss_modes.py"))
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT.with_name("cmapss_modes.py"), "cmapss_modes")
 
 
 def test_fault_groups_split_two_modes_of_change(modes):

@@ -2,16 +2,12 @@
 Markdown tables (continuation lines joined, a new row wherever a column before the last has
 text), Sphinx roles code spans, a closing ``::`` a colon."""
 
-import importlib.util
 
-from .conftest import REPO
+from .conftest import REPO, load_script
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("griffe_rest", REPO / "docs" / "griffe_rest.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(REPO / "docs" / "griffe_rest.py", "griffe_rest")
 
 
 TEXT = """Intro with :mod:`engine_model.runtime` and :func:`~a.b.c`.

@@ -2,21 +2,16 @@
 run's record and its per-cycle predictions (never the per-sample predictions or the weights)
 only when the run finished, ``result.json`` last, and never twice."""
 
-import importlib.util
 import json
 
 import pandas as pd
 import pytest
 
-from .conftest import REPO
+from .conftest import REPO, load_script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location(
-        "paper_experiment", REPO / "benchmarks" / "paper_experiment.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(REPO / "benchmarks" / "paper_experiment.py", "paper_experiment")
 
 
 def _predictions(offset: float) -> pd.DataFrame:
