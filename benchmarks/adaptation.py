@@ -140,7 +140,10 @@ def early_life_theta(feat: Path) -> pd.DataFrame:
 
 
 def change_over_life(feat: Path) -> pd.DataFrame:
-    """Per unit: mean(theta_hat, last LATE cycles) - mean(first EARLY) [%] of :data:`FIVE`."""
+    """Per unit: mean(theta_hat, last LATE cycles) - mean(first EARLY) [%] of :data:`FIVE`:
+    the issue's measurement of FD001's fault. (``cmapss_modes.life_change`` is another
+    statistic of the same change, medians of 20 cycles at each end, robust for clustering
+    units by fault mode; each feeds its own committed table, so both stay.)"""
     from engine_model.datasets import read_dataset
 
     df, _ = read_dataset(feat)
