@@ -18,7 +18,8 @@ fleet_fit       the joint fit: shared parameters and every engine's health, boun
                 Gauss-Newton with exact (CasADi) Jacobians, Schur complement over engines
 selection       forward selection judged by leaving each operating condition out, and the
                 error on held-out engines
-adapt           the whole run and its record
+adapt           the whole run and its record; ``assess``: a recorded adaptation refitted
+                to data, its errors with each condition left out and their std
 artefact        the adapted model as a file that calibrate, discover and pipeline load
                 (``--model-effects``)
 ==============  ==========================================================================
@@ -31,7 +32,7 @@ The data need ``unit``, ``cycle``, the operating settings ``alt Mach TRA T2``, a
 ``condition`` label (``hyprog data import-cmapss`` writes it) and the channels.
 """
 
-from .adapt import Adaptation, adapt
+from .adapt import Adaptation, adapt, assess
 from .artefact import AdaptedModel, load_adapted, write_adapted
 
-__all__ = ["Adaptation", "AdaptedModel", "adapt", "load_adapted", "write_adapted"]
+__all__ = ["Adaptation", "AdaptedModel", "adapt", "assess", "load_adapted", "write_adapted"]

@@ -15,9 +15,17 @@ from engine_model.datasets.fingerprint import rows_fingerprint
 
 from ..measurement_noise import EARLY_CYCLES
 from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
-from .fleet_fit import FleetData, FleetFit, Shared
-from .groups import build_groups
-from .selection import Selection, engines_out, mean_errors, select, shared_of
+from .fleet_fit import FleetData, FleetFit, Shared, fit_fleet
+from .groups import SENSOR_GROUP, build_groups
+from .selection import (
+    OutOfSample,
+    Selection,
+    condition_out,
+    engines_out,
+    mean_errors,
+    select,
+    shared_of,
+)
 
 
 @dataclass
@@ -88,6 +96,8 @@ class Adaptation:
                     "after": mean_errors(self.data, sel.fit.prediction, sel.fit.converged)},
                 "mean_error_pct_condition_out": {"before": sel.before.mean_error_pct,
                                                  "after": sel.after.mean_error_pct},
+                "std_pct_condition_out": {"before": sel.before.std_pct,
+                                          "after": sel.after.std_pct},
                 "theta_early_life": {"before": self.theta_summary(sel.base_fit),
                                      "after": self.theta_summary(sel.fit)},
             },
@@ -119,3 +129,37 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
             "samples": len(data.y), "early_cycles": early_cycles, "model_error": model_error}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
+
+
+def assess(df: pd.DataFrame, record: dict, units=None, model=None,
+           source: str = "data") -> tuple[FleetFit, OutOfSample]:
+    """An adapted model's record (:mod:`.artefact`) refitted to the early life of ``units`` of
+    ``df`` with its own choices (channels, early cycles, model error, chosen candidates),
+    started at its recorded values: the fit and the errors with each condition left out,
+    with their std (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on,
+    this gives a record written before ``std_pct_condition_out`` existed its uncertainty;
+    on other engines of the same engine type, how the adaptation holds there. ``model``: a
+    prebuilt :class:`~calibration.discrepancy.candidates.CandidateModel` of the record's
+    candidate groups (tests)."""
+    from calibration.discrepancy.candidates import CandidateModel
+
+    info = record.get("data", {})
+    chosen = list(record["selection"]["chosen"])
+    data, _ = fleet_data(df, tuple(record["channels"]),
+                         info.get("early_cycles", EARLY_CYCLES), units, source=source,
+                         model_error=info.get("model_error", MODEL_ERROR))
+
+    def group_of(c) -> str:
+        return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
+
+    names = sorted({group_of(c) for c in build_groups(data.channels) if c.name in chosen})
+    groups = build_groups(data.channels, names)
+    model = model or CandidateModel(groups)
+    value = {(p["candidate"], p["parameter"]): p["value"] for p in record["parameters"]}
+    phi = np.zeros(model.n_phi)
+    for c in groups:
+        for j, q in enumerate(c.params):
+            phi[c.index[j]] = value.get((c.name, q), 0.0)
+    shared = shared_of(groups, chosen)
+    fit = fit_fleet(model, data, shared, phi)
+    return fit, condition_out(model, data, shared, fit)

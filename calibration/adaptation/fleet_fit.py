@@ -101,7 +101,14 @@ class FleetFit:
     """The fit: ``phi`` (the candidate model's whole vector), ``delta`` (U, k) every engine's
     health, ``cov`` the posterior covariance of ``phi[free]`` (every engine's health
     marginalised out), ``residual`` (N, m) whitened, ``prediction`` (N, m), ``converged``
-    (N,), ``cost`` L, ``history`` L after every accepted step."""
+    (N,), ``cost`` L, ``history`` L after every accepted step.
+
+    The rest of the posterior at the optimum (Laplace approximation, the Gauss-Newton matrix
+    ``[[H_uu, H_ub], [H_ub^T, H_bb]]`` inverted block by block): given ``phi``, engine
+    ``u``'s health is Gaussian with mean ``delta_u - health_gain[u] (phi - phi_hat)`` and
+    covariance ``health_cov[u] = H_uu^-1`` (U, k, k); ``health_gain[u] = H_uu^-1 H_ub``
+    (U, k, p). With ``cov`` this is the whole joint posterior, used for the uncertainty of a
+    prediction (:func:`mean_prediction_std`). ``s_theta`` is the engines' prior std."""
 
     phi: np.ndarray
     delta: np.ndarray
@@ -113,6 +120,9 @@ class FleetFit:
     shared: Shared
     history: list = field(default_factory=list)
     x: np.ndarray | None = field(default=None, repr=False)
+    health_cov: np.ndarray | None = field(default=None, repr=False)
+    health_gain: np.ndarray | None = field(default=None, repr=False)
+    s_theta: float = S_THETA
 
     @property
     def iterations(self) -> int:
@@ -233,9 +243,56 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
         lam = max(lam / 10.0, 1e-9)
         if decrease < REL_TOL:
             break
-    cov = np.zeros((0, 0))
-    if len(free):
-        Huu, _, Hub, Hbb, _ = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta,
-                                                starts)
-        cov = np.linalg.pinv(Hbb - np.einsum("uib,uij,ujc->bc", Hub, np.linalg.inv(Huu), Hub))
-    return FleetFit(phi, delta, cov, e, ev.y, ok, cost, shared, history, ev.x)
+    Huu, _, Hub, Hbb, _ = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta,
+                                            starts)
+    health_cov = np.linalg.inv(Huu)
+    health_gain = np.einsum("uij,ujb->uib", health_cov, Hub)
+    cov = np.linalg.pinv(Hbb - np.einsum("uib,uic->bc", Hub, health_gain)) if len(free) \
+        else np.zeros((0, 0))
+    return FleetFit(phi, delta, cov, e, ev.y, ok, cost, shared, history, ev.x, health_cov,
+                    health_gain, s_theta)
+
+
+def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> np.ndarray:
+    """Std (m,) of the difference between the mean prediction of every channel over the
+    ``usable`` samples of ``data`` and the mean of their readings, under the posterior of
+    ``fit`` (Laplace, :class:`FleetFit`) and the likelihood's noise.
+
+    ``ev`` is the model's evaluation of ``data`` at ``fit``'s parameters with derivatives;
+    ``engine`` (U_data,) the row of each of ``data``'s engines in ``fit.delta``, or -1 for an
+    engine the fit did not see (its health then has its prior, ``s_theta``, and no
+    correlation with ``phi``). A sample ``n`` of engine ``u`` moves with the shared
+    parameters through ``G_n = J_phi,n - J_delta,n health_gain[u]`` and with the health of
+    its engine, independent across engines given ``phi``, through ``J_delta,n``; with
+    ``N`` usable samples and ``a_u = sum_(n in u) J_delta,n / N``::
+
+        var_j = g_j cov g_j^T + sum_u a_u,j health_cov[u] a_u,j^T + sum_n sigma_nj^2 / N^2,
+        g_j = sum_n G_n,j / N
+
+    (the prediction's variance from the shared parameters, from every engine's health, and
+    the readings' noise as the likelihood states it, the model's own error included as
+    independent per sample). A parameter held at a bound is treated as free (the curvature
+    at the optimum), so the std is the fit's own statement of how well it knows the
+    prediction; a mean error of many such stds says that the fit's candidates and priors do
+    not hold there."""
+    rows = np.flatnonzero(usable)
+    if not len(rows):
+        return np.full(len(data.channels), np.nan)
+    n_rows = len(rows)
+    k = len(THETA_NAMES)
+    Jd = ev.d_theta[rows]
+    Jp = ev.d_phi[rows][:, :, fit.shared.free]
+    eng = np.asarray(engine)[data.unit[rows]]
+    seen = eng >= 0
+    gain = np.zeros((n_rows, k, len(fit.shared.free)))
+    gain[seen] = fit.health_gain[eng[seen]]
+    g = (Jp - np.einsum("nmk,nkb->nmb", Jd, gain)).sum(axis=0) / n_rows
+    var = np.einsum("mb,bc,mc->m", g, fit.cov, g) if len(fit.shared.free) else 0.0
+    for u in np.unique(data.unit[rows]):
+        mine = data.unit[rows] == u
+        a = Jd[mine].sum(axis=0) / n_rows
+        cu = fit.health_cov[eng[mine][0]] if eng[mine][0] >= 0 \
+            else np.eye(k) * fit.s_theta ** 2
+        var = var + np.einsum("mk,kl,ml->m", a, cu, a)
+    var = var + np.sum(data.sigma[rows] ** 2, axis=0) / n_rows ** 2
+    return np.sqrt(var)

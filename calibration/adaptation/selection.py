@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .fleet_fit import FleetData, FleetFit, Shared, evaluate, fit_fleet
+from .fleet_fit import FleetData, FleetFit, Shared, evaluate, fit_fleet, mean_prediction_std
 from .groups import LEVEL_GROUP, bounds
 
 #: Gauss-Newton steps of a screening refit.
@@ -70,12 +70,15 @@ def shared_of(groups, chosen) -> Shared:
 @dataclass
 class OutOfSample:
     """Per held-out condition: ``chi2`` (mean squared whitened residual), ``mean_error_pct``
-    (channel -> 100 (mean prediction - mean reading) / mean reading over its samples);
-    ``chi2_out`` over every held-out sample."""
+    (channel -> 100 (mean prediction - mean reading) / mean reading over its samples),
+    ``std_pct`` (channel -> the std of that error under the fit's posterior and noise, in
+    % of the same mean reading: :func:`.fleet_fit.mean_prediction_std`); ``chi2_out`` over
+    every held-out sample."""
 
     chi2_out: float
     chi2: dict = field(default_factory=dict)
     mean_error_pct: dict = field(default_factory=dict)
+    std_pct: dict = field(default_factory=dict)
 
     @property
     def worst(self) -> float:
@@ -113,13 +116,17 @@ def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> Ou
             np.arange(data.n_units), np.unique(data.unit[~held]))])
         test = data.subset(held)
         pos = {u: i for i, u in enumerate(train.units)}
-        delta = np.array([fit.delta[pos[u]] if u in pos else np.zeros(fit.delta.shape[1])
-                          for u in test.units])
-        ev, e, ok = evaluate(model, test, delta, fit.phi)
+        row = np.array([pos.get(u, -1) for u in test.units])
+        delta = np.where(row[:, None] >= 0, fit.delta[np.maximum(row, 0)], 0.0)
+        ev, e, ok = evaluate(model, test, delta, fit.phi, derivatives=True)
         sq += float(np.sum(e[ok] ** 2))
         n += int(ok.sum()) * e.shape[1]
         res.chi2[int(c)] = float(np.mean(e[ok] ** 2))
         res.mean_error_pct.update(mean_errors(test, ev.y, ok))
+        level = test.y[ok].mean(axis=0)
+        std = mean_prediction_std(fit, ev, test, row, ok)
+        res.std_pct[int(c)] = {ch: float(100.0 * std[j] / abs(level[j]))
+                               for j, ch in enumerate(data.channels)}
     res.chi2_out = sq / max(n, 1)
     return res
 
