@@ -123,6 +123,53 @@ def error_tables(rec: dict) -> str:
     return "\n".join(lines)
 
 
+def condition_out_std(rec: dict, fd002: Path) -> tuple[dict, str]:
+    """The std of each held-out condition's mean error, before and after (the record's own,
+    or, for a record written before it recorded them, :func:`calibration.adaptation.assess`
+    of the record and of the model as designed refitted to the same data), and a line on
+    how the refit's errors compare with the record's."""
+    s = rec["selection"]
+    if "std_pct_condition_out" in s:
+        return s["std_pct_condition_out"], "the adaptation's own record"
+    from calibration.adaptation import assess
+    from engine_model.datasets import read_dataset
+
+    df, _ = read_dataset(fd002)
+    designed = {**rec, "selection": {"chosen": []}, "parameters": []}
+    out, gap = {}, 0.0
+    for when, r in (("before", designed), ("after", rec)):
+        _, oos = assess(df, r, source=str(fd002))
+        out[when] = oos.std_pct
+        gap = max(gap, *(abs(oos.mean_error_pct[int(c)][ch] - v)
+                         for c, row in s["mean_error_pct_condition_out"][when].items()
+                         for ch, v in row.items()))
+    return out, (f"calibration.adaptation.assess, the record refitted to the same data (its "
+                 f"held-out errors within {gap:.3f} % of the record's)")
+
+
+def z_tables(rec: dict, std: dict, how: str) -> str:
+    """Each held-out condition's mean error over its std, before and after."""
+    chans = rec["channels"]
+    lines = ["Each condition left out: mean error / its std (the std of the mean prediction "
+             "under the fit's posterior, the shared parameters and every engine's health, "
+             "and the readings' noise as the likelihood states it: "
+             f"calibration.adaptation.fleet_fit.mean_prediction_std; from {how}). A model "
+             "whose candidates and priors hold is within about 3; the std itself [%] is the "
+             "second table:", ""]
+    for when in ("before", "after"):
+        err = pd.DataFrame(rec["selection"]["mean_error_pct_condition_out"][when]).T
+        sd = pd.DataFrame(std[when]).T
+        err.index, sd.index = (pd.Index([str(i) for i in t.index]) for t in (err, sd))
+        z = (err / sd).loc[:, chans]
+        z.index = [f"condition {c}" for c in z.index]
+        lines += [f"{when}, error / std:", "", markdown(z, 1), ""]
+        if when == "after":
+            sd = sd.loc[:, chans]
+            sd.index = [f"condition {c}" for c in sd.index]
+            lines += [f"{when}, std [%]:", "", markdown(sd, 3), ""]
+    return "\n".join(lines)
+
+
 def early_life_theta(feat: Path) -> pd.DataFrame:
     """Per parameter: mean of theta_hat over cycles 1-EARLY per condition, their mean and
     spread."""
@@ -201,6 +248,7 @@ def main(argv=None) -> int:
                f"Chosen, in order: {', '.join(rec['selection']['chosen']) or 'nothing'}; "
                f"{rec['data']['units']} engines, {rec['data']['samples']} samples, "
                f"{rec['seconds']:.0f} s.", "", error_tables(rec), ""]
+    report += [z_tables(rec, *condition_out_std(rec, fd002)), ""]
 
     report += ["## 2. Early-life health of the FD002 engines [%]", "",
                f"Calibrated with {' '.join(noise) or 'the simulator noise'} (sections 2, 3).",

@@ -64,12 +64,12 @@ def simulate(
     from engine_model import datasets, runtime
     from engine_model.physics.effects import parse_effect_spec
     from engine_model.simulator import fleet
+    from engine_model.validation import check_seed
 
     with user_errors(output=out):
         if record is not None:
             check_choice(record, "--record", RECORDS)
-        if seed < 0:
-            raise CliError(f"--seed {seed}: expected an integer >= 0")
+        check_seed(seed, "--seed")
         if jobs < 1:
             raise CliError(f"--jobs {jobs}: expected an integer >= 1")
         unit_list = parse_units(units)

@@ -59,6 +59,13 @@ def _first_bad(mask):
     return int(np.flatnonzero(mask)[0])
 
 
+def check_seed(seed, what: str = "seed") -> int:
+    """``seed`` as an int >= 0 (numpy's and torch's generators take no negative seed)."""
+    if int(seed) != seed or int(seed) < 0:
+        raise InputError(f"{what} {seed}: expected an integer >= 0")
+    return int(seed)
+
+
 def check_columns(columns, required, what="input"):
     missing = [c for c in required if c not in columns]
     if missing:

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from engine_model.validation import InputError
+from engine_model.validation import InputError, check_seed
 
 from .metrics import nasa_score, per_cycle, rmse
 
@@ -60,6 +60,7 @@ def unit_folds(units: Sequence[int], k: int, seed: int) -> list[Fold]:
     units = sorted({int(u) for u in units})
     if not units:
         raise InputError("cross-validation: no units to fold")
+    check_seed(seed, "cross-validation: seed")
     if not 2 <= k <= len(units):
         raise InputError(f"cross-validation: {k} folds of {len(units)} units; need 2 <= k <="
                          f" {len(units)}")
@@ -77,6 +78,7 @@ def truncate_units(df: pd.DataFrame, units: Sequence[int], seed: int,
     missing = [c for c in ("unit", "cycle") if c not in df.columns]
     if missing:
         raise InputError(f"truncate: missing column(s) {', '.join(missing)}")
+    check_seed(seed, "truncate: seed")
     if min_cycles < 1:
         raise InputError(f"truncate: min_cycles must be >= 1, got {min_cycles}")
     if max_rul is not None and not max_rul >= 0:

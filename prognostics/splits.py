@@ -73,7 +73,8 @@ def assign_roles(unit: np.ndarray, cycle: np.ndarray, dev_units: Sequence[int],
             what = "both development and test" if name == "test" else \
                 "conformal but not development"
             raise InputError(f"{source}: unit(s) {', '.join(map(str, both))} are {what}")
-    fit_units = [u for u in dev if u not in set(conf)]
+    # sorted: the seed's draw must not depend on the order the units were listed in
+    fit_units = sorted(u for u in dev if u not in set(conf))
     if not fit_units:
         raise InputError(f"{source}: no development unit left to train on")
     roles = np.full(len(unit), UNUSED, dtype=np.int8)

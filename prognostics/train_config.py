@@ -53,7 +53,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 
-from engine_model.validation import InputError
+from engine_model.validation import InputError, check_seed
 
 from .choices import (  # noqa: F401  (re-exported: the names every caller imports from here)
     FLIGHT_MODELS,
@@ -131,6 +131,7 @@ class TrainConfig:
                                  f"{getattr(self, name)!r}")
         c = replace(self,
                     window=DEFAULT_WINDOW[self.model] if self.window is None else self.window)
+        check_seed(c.seed)
         for name in ("window", "stride", "epochs", "batch_size", "patience"):
             v = getattr(c, name)
             if v is not None and int(v) < 1:

@@ -345,6 +345,11 @@ def train_member(prep: Prepared, seed: int, device: torch.device,
                 bad += 1
                 if val_loss is not None and bad >= cfg.patience:
                     break
+        if best_state is None:  # every epoch's loss inf or NaN
+            raise InputError(f"training diverged (seed {seed}): the "
+                             f"{'validation' if val is not None and len(val) else 'training'}"
+                             f" loss was not finite in any of {len(history)} epochs; lower "
+                             f"--lr (now {cfg.lr:g})")
         net.load_state_dict(best_state)
     state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
     return Member(int(seed), state, history, best_epoch, parameter_count(net))

@@ -179,6 +179,12 @@ def test_validation_is_whole_flights_about_ten_percent_per_unit(make_features):
     other = assign_roles(unit, cycle, [1, 2, 3], [4], seed=12)
     np.testing.assert_array_equal(roles, again)  # the seed fixes the draw
     assert not np.array_equal(roles, other)
+    # the draw depends on the set of units, not on the order they were listed in
+    np.testing.assert_array_equal(roles, assign_roles(unit, cycle, [3, 1, 2], [4], seed=11))
+    by_unit = assign_roles(unit, cycle, [1, 2, 3], [4], seed=5, validation="units",
+                           val_fraction=0.34)
+    np.testing.assert_array_equal(by_unit, assign_roles(
+        unit, cycle, [2, 3, 1], [4], seed=5, validation="units", val_fraction=0.34))
 
 
 def test_validation_units_conformal_units_and_refusals(make_features):

@@ -14,7 +14,7 @@ import torch
 
 from engine_model.validation import InputError
 from prognostics.checkpoint import load_model, save_model
-from prognostics.cross_validation import truncate_units
+from prognostics.cross_validation import truncate_units, unit_folds
 from prognostics.ensemble import fit
 from prognostics.models import DCNN, build_model, parameter_count
 from prognostics.scaling import ConditionScaler, MinMaxScaler, fit_scaler, scaler_from_dict
@@ -63,6 +63,23 @@ def test_given_values_are_kept_and_bad_ones_refused():
                 {"batch_size": 0}, {"patience": 0}):
         with pytest.raises(InputError):
             TrainConfig(**bad).resolved()
+    with pytest.raises(InputError, match="seed -1: expected an integer >= 0"):
+        TrainConfig(seed=-1).resolved()
+    with pytest.raises(InputError, match="cross-validation: seed -2"):
+        unit_folds([1, 2, 3], 2, -2)
+    with pytest.raises(InputError, match="truncate: seed -3"):
+        truncate_units(pd.DataFrame({"unit": [1], "cycle": [1]}), [1], -3)
+
+
+def test_a_training_run_that_diverges_is_a_clear_error(make_features):
+    """A learning rate so large that no epoch's loss is finite: one line naming the seed and
+    the rate, not a traceback from restoring a best epoch that never was."""
+    df, meta = make_features()
+    cfg = TrainConfig(model="fnn", inputs="data-driven", epochs=2, lr=1e30, device="cpu",
+                      schedule="constant")
+    with pytest.raises(InputError,
+                       match=r"training diverged \(seed 0\).*lower --lr \(now 1e\+30\)"):
+        fit(df, meta, cfg)
 
 
 def test_the_trained_model_records_the_values_the_rules_chose(make_features):

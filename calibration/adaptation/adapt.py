@@ -153,7 +153,7 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
         return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
 
     names = sorted({group_of(c) for c in build_groups(data.channels) if c.name in chosen})
-    groups = build_groups(data.channels, names)
+    groups = build_groups(data.channels, names) if names else []
     model = model or CandidateModel(groups)
     value = {(p["candidate"], p["parameter"]): p["value"] for p in record["parameters"]}
     phi = np.zeros(model.n_phi)
