@@ -89,25 +89,32 @@ def noise_options(noise: str, model_error: float) -> tuple[list[str], str]:
 def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "default",
                    adapted: Path | None = None, noise: str = "model",
                    model_error: float = 0.0) -> Path:
-    """Import and calibrate ``subset`` into ``work`` (once) with ``hyprog calibrate --params
-    params`` (and ``--model-effects adapted``, ``--noise``, ``--model-error``); the feature
-    table's path."""
+    """Import ``subset``'s training file into ``work`` (once) and calibrate it
+    (:func:`calibrated`); the feature table's path."""
     raw = work / subset.lower()
-    noise_args, noise_tag = noise_options(noise, model_error)
-    feat = work / (f"{subset.lower()}-features" + ("" if params == "default" else f"-{params}")
-                   + ("" if adapted is None else f"-adapted-{file_sha(adapted)[:8]}")
-                   + ("" if not noise_tag else "-" + noise_tag.replace("--", "")
-                      .replace(" ", "-")))
     if not raw.exists():
         hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--out",
                str(raw), "--overwrite")
+    return calibrated(raw, params, adapted, noise, model_error)
+
+
+def calibrated(raw: Path, params: str = "default", adapted: Path | None = None,
+               noise: str = "model", model_error: float = 0.0) -> Path:
+    """The imported table ``raw`` calibrated beside it (once) with ``hyprog calibrate --params
+    params`` (and ``--model-effects adapted``, ``--noise``, ``--model-error``), in a folder
+    named after ``raw`` and the variant; its path."""
+    noise_args, noise_tag = noise_options(noise, model_error)
+    feat = raw.parent / (f"{raw.name}-features" + ("" if params == "default" else f"-{params}")
+                         + ("" if adapted is None else f"-adapted-{file_sha(adapted)[:8]}")
+                         + ("" if not noise_tag else "-" + noise_tag.replace("--", "")
+                            .replace(" ", "-")))
     if not feat.exists():  # (a calibration cut short resumes: run it again by hand)
         t0 = time.perf_counter()
         extra = [] if params == "default" else ["--params", params]
         extra += [] if adapted is None else ["--model-effects", str(adapted)]
         extra += noise_args
         hyprog("calibrate", str(raw), "--out", str(feat), *extra)
-        print(f"{subset}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        print(f"{raw.name}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return feat
 
 
@@ -121,41 +128,66 @@ def test_files(data_dir: Path, subset: str) -> tuple[Path, Path] | None:
     return (test, rul) if test.exists() and rul.exists() else None
 
 
-def evaluate_on_test_files(data_dir: Path, work: Path, subset: str, model: str,
-                           seeds: list[int], overrides: dict) -> list[dict]:
+def evaluate_on_test_files(args, subset: str, model: str, overrides: dict) -> list[dict]:
     """The chosen configuration trained on every training unit and scored once on NASA's
     test units at their last cycle (import with ``--test/--rul``: test unit ``u`` is unit
-    ``1000 + u``), per seed and for the seeds' ensemble; one record per input set."""
+    ``1000 + u``), per seed and for the seeds' ensemble; one record per input set of
+    ``args.inputs``. Exactly the cross-validated variant: the same calibration (``--params``,
+    ``--model-effects``, ``--noise``, ``--model-error``), the same columns left out
+    (:func:`unobservable_somewhere`), the same pooled units (``--pool``)."""
     from engine_model.datasets import read_dataset
     from prognostics.cross_validation import last_cycle_scores
     from prognostics.ensemble import fit
     from prognostics.train_config import TrainConfig
 
-    test, rul = test_files(data_dir, subset)
-    raw, feat = work / f"{subset.lower()}-test", work / f"{subset.lower()}-test-features"
+    test, rul = test_files(args.data_dir, subset)
+    raw = args.work / f"{subset.lower()}-test"
     if not raw.exists():
-        hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--test",
+        hyprog("data", "import-cmapss", str(args.data_dir / f"train_{subset}.txt"), "--test",
                str(test), "--rul", str(rul), "--out", str(raw), "--overwrite")
-    if not feat.exists():
-        hyprog("calibrate", str(raw), "--out", str(feat))
-    df, meta = read_dataset(feat)
+    df, meta = read_dataset(calibrated(raw, args.params, args.model_effects, args.noise,
+                                       args.model_error))
     test_units = [int(u) for u in meta["test_units"]]
+    df, pooled = pooled_units(df, pooled_subsets(args, subset), args)
+    df = unobservable_somewhere(df, subset)
     train_units = sorted(set(df["unit"].unique().tolist()) - set(test_units))
     normalise = "condition" if subset in MULTI_CONDITION else "minmax"
+    seeds = [int(x) for x in args.seeds.split(",")]
     out = []
-    for name, spec in INPUTS.items():
-        cfg = replace(TrainConfig(model=model, inputs=spec, max_rul=MAX_RUL, normalise=normalise,
-                                  units=tuple(train_units), test_units=tuple(test_units),
-                                  device="cpu"), **overrides)
+    for name in args.inputs.split(","):
+        cfg = replace(TrainConfig(model=model, inputs=INPUTS[name], max_rul=MAX_RUL,
+                                  normalise=normalise, units=tuple(train_units),
+                                  test_units=tuple(test_units), device="cpu"), **overrides)
         m = fit(df, meta, cfg, seeds=seeds)
-        per_seed = []
-        for k in range(len(seeds)):
-            single = replace(m, members=[m.members[k]])
-            per_seed.append(last_cycle_scores(single.predict(df, test_units), MAX_RUL)["rmse"])
-        ens = last_cycle_scores(m.predict(df, test_units), MAX_RUL)["rmse"]
+        preds = [replace(m, members=[member]).predict(df, test_units) for member in m.members]
+        per_seed = [last_cycle_scores(p, MAX_RUL)["rmse"] for p in preds]
+        # the ensemble as the cross-validation tables have it (ensemble_deltas): the mean of
+        # the seeds' capped predictions (RulModel.predict caps the mean of the raw ones)
+        ens_pred = preds[0].assign(RUL_pred=np.mean([p["RUL_pred"] for p in preds], axis=0))
+        ens = last_cycle_scores(ens_pred, MAX_RUL)["rmse"]
         out.append({"subset": subset, "model": model, "inputs": name, "units": len(test_units),
                     "rmse_per_seed": per_seed, "rmse_ensemble": ens})
     return out
+
+
+def pooled_subsets(args, subset: str) -> list[str]:
+    """The subsets of ``--pool`` whose training units join ``subset``'s (itself excluded,
+    only those whose file is in the folder)."""
+    return [p for p in args.pool.split(",") if p and p != subset
+            and (args.data_dir / f"train_{p}.txt").exists()]
+
+
+#: The window of the runs the floors were first cached for (dcnn's): floors of held-out units
+#: cut from another cycle (another window) carry it in their key and label (:data:`CUT_FROM`).
+FLOORS_CUT_FROM = 30
+CUT_FROM = "cut from cycle {}"
+
+
+def settings_label(overrides: dict) -> str:
+    """What a run's label says of ``--set`` (nothing when there is none), so that runs of
+    one input set under different settings are summarised apart."""
+    return " [" + ", ".join(f"{k}={v}" for k, v in sorted(overrides.items())) + "]" \
+        if overrides else ""
 
 
 def run_key(body: dict) -> str:
@@ -319,8 +351,7 @@ def main(argv=None) -> int:
                               args.noise, args.model_error)
         df, meta = read_dataset(feat)
         units = sorted(df["unit"].unique().tolist())
-        pool = [p for p in args.pool.split(",") if p and p != subset
-                and (args.data_dir / f"train_{p}.txt").exists()]
+        pool = pooled_subsets(args, subset)
         df, pooled = pooled_units(df, pool, args)
         df = unobservable_somewhere(df, subset)
         normalise = "condition" if subset in MULTI_CONDITION else "minmax"
@@ -346,16 +377,21 @@ def main(argv=None) -> int:
                                    units=(*fold.train, *pooled), test_units=(),
                                    device="cpu")
                 base = replace(base, **overrides)
+                cut_from = int(base.resolved().window)
                 held = truncate_units(df, fold.held_out, seed=args.fold_seed,
-                                      min_cycles=int(base.resolved().window), max_rul=MAX_RUL)
+                                      min_cycles=cut_from, max_rul=MAX_RUL)
+                # the floors on the same cut points as the networks beside them: the
+                # held-out units are cut no earlier than the model's window
+                other_cut = {} if cut_from == FLOORS_CUT_FROM else {"cut_from": cut_from}
                 fkey = run_key({"floors": 1, "subset": subset, "fold": k, "folds": args.folds,
-                                "fold_seed": args.fold_seed, **variant})
+                                "fold_seed": args.fold_seed, **variant, **other_cut})
                 if fkey not in done:
                     if hi_fn is None:  # the health index of the model θ̂ belongs to
                         from prognostics.baseline import engine_health_index, health_effects
                         hi_fn = engine_health_index(health_effects(meta))
                     rec = {"key": fkey, "kind": "floors", "subset": subset, "fold": k,
-                           "variant": (suffix + partition).strip(", "),
+                           "variant": (suffix + (f", {CUT_FROM.format(cut_from)}"
+                                                 if other_cut else "") + partition).strip(", "),
                            **floors(df, fold, held, hi_fn)}
                     append_run(cache, rec)
                     done[fkey] = rec
@@ -370,7 +406,7 @@ def main(argv=None) -> int:
                             label += suffix
                         if pool:
                             body["pool"] = pool
-                        label += tail
+                        label += settings_label(overrides) + tail
                         key = run_key(body)
                         if key not in done:  # another process may have done it since
                             done.update({r["key"]: r for r in read_runs(cache)})
@@ -397,9 +433,7 @@ def main(argv=None) -> int:
                  "|---|---|---|---|---|"]
         for subset in found:
             for model in args.models.split(","):
-                seeds = [int(x) for x in args.seeds.split(",")]
-                for r in evaluate_on_test_files(args.data_dir, args.work, subset, model,
-                                                seeds, overrides):
+                for r in evaluate_on_test_files(args, subset, model, overrides):
                     lines.append(f"| {subset} | {model} {r['inputs']} | {r['units']} | "
                                  + ", ".join(f"{v:.2f}" for v in r["rmse_per_seed"])
                                  + f" | {r['rmse_ensemble']:.2f} |")
@@ -423,7 +457,9 @@ def ensemble_deltas(h: pd.DataFrame) -> dict:
     """Per fold with every seed done, the seeds' mean prediction's error on each held-out unit:
     the held-out units and their truths are the same for every seed of a fold, so the
     ensemble's error on a unit is the mean of the seeds' errors ``Δ = RUL - RUL_pred`` (each
-    prediction capped like the targets). ``{fold: Series indexed by unit}``."""
+    prediction capped like the targets, then averaged: where the seeds straddle the cap this
+    differs from ``RulModel.predict``, which caps the mean; the ``--test`` table uses this
+    one too). ``{fold: Series indexed by unit}``."""
     out = {}
     n_seeds = h["seed"].nunique()
     for fold, g in h.groupby("fold"):
@@ -542,11 +578,15 @@ def summarise(runs: pd.DataFrame) -> str:
         fl = g[g["kind"] == "floors"].drop_duplicates("key")
         fl = fl.assign(variant=fl["variant"].fillna("") if "variant" in fl else "")
         # the constant and life floors read no calibration: one per fold of each partition
+        # (and of each cut of the held-out units)
         pattern = "(" + PARTITION.format(r"\d+") + ")$"
         part = fl["variant"].str.extract(pattern, expand=False).fillna("")
-        for label, h in fl.assign(partition=part).groupby("partition", sort=True):
+        cut = fl["variant"].str.extract("(" + CUT_FROM.format(r"\d+") + ")",
+                                        expand=False).fillna("")
+        for (c, label), h in fl.assign(cut=cut, partition=part).groupby(["cut", "partition"],
+                                                                        sort=True):
             h = h.drop_duplicates("fold")
-            tag = f", {label}" if label else ""
+            tag = "".join(f", {x}" for x in (c, label) if x)
             for col, name in (("constant", "constant floor"), ("life", "life floor")):
                 if col in h.columns and h[col].notna().any():
                     lines.append(f"| {subset} | {name}{tag} | {h[col].mean():.2f} ± "

@@ -69,6 +69,41 @@ def test_summary_pairs_each_partition_and_pools_them(bench):
     assert "dcnn data-driven, fold seeds 0, 1, ensemble of the seeds" in rows
 
 
+def test_runs_under_other_settings_and_floors_of_other_cuts_are_summarised_apart(bench):
+    """A ``--set`` study's runs carry their settings in the label (before the partition), so
+    they are neither pooled with nor paired against the same input set's default runs; the
+    floors of held-out units cut from another cycle are their own rows."""
+    runs = runs_table(1.1)
+    study = runs[runs["inputs"].str.startswith("data-driven")].copy()
+    label = "data-driven" + bench.settings_label({"window": 20, "lr": 0.01})
+    assert label == "data-driven [lr=0.01, window=20]"
+    study["inputs"] = study["inputs"].str.replace("data-driven", label, regex=False)
+    study["key"] = study["key"] + "w"
+    assert bench.split_partition(f"{label}, {bench.PARTITION.format(1)}") == (label, 1)
+    floors = pd.DataFrame([{"key": f"f{c}{k}", "kind": "floors", "subset": "FD001", "fold": k,
+                            "variant": c, "constant": 40.0 + k, "life": 30.0}
+                           for c in ("", bench.CUT_FROM.format(20)) for k in (0, 1)])
+    table = bench.summarise(pd.concat([runs, study, floors], ignore_index=True))
+    rows = {line.split(" | ")[1]: line for line in table.splitlines()[2:]}
+    assert "dcnn data-driven [lr=0.01, window=20]" in rows and "dcnn data-driven" in rows
+    assert "| 4 pairs |" in rows["dcnn: hybrid-theta --params all vs data-driven, paired"]
+    assert "constant floor" in rows and "constant floor, cut from cycle 20" in rows
+
+
+def test_the_test_files_are_calibrated_as_the_cross_validated_variant(bench, tmp_path,
+                                                                     monkeypatch):
+    calls = []
+    monkeypatch.setattr(bench, "hyprog", lambda *a: calls.append(a))
+    effects = tmp_path / "adapted.json"
+    effects.write_text("{}")
+    feat = bench.calibrated(tmp_path / "fd002-test", "all", effects, "data", 0.003)
+    sha = bench.file_sha(effects)[:8]
+    assert feat.name == f"fd002-test-features-all-adapted-{sha}-noise-data-model-error-0.003"
+    assert calls == [("calibrate", str(tmp_path / "fd002-test"), "--out", str(feat),
+                      "--params", "all", "--model-effects", str(effects), "--noise", "data",
+                      "--model-error", "0.003")]
+
+
 @pytest.fixture(scope="module")
 def modes():
     return load_script(SCRIPT.with_name("cmapss_modes.py"), "cmapss_modes")
