@@ -8,7 +8,7 @@ it changes: the model's error per condition, the health of new engines, FD001's 
    life = cycles 1-20 of every engine) into ``--work`` (reused when there): the record's
    errors per condition and channel before and after, in sample and with the condition left
    out, and the chi-square per sample and channel in sample, condition left out and engines
-   left out;
+   left out; each condition's error left out over its std (:func:`z_tables`);
 2. early-life health of new engines: ``hyprog calibrate`` of FD002 with the unadapted and the
    adapted model (``--model-effects``), the UKF and its default parameters, and the five
    health parameters that FD001's sensors observe together (:data:`FIVE`); the mean of
@@ -42,6 +42,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+# the repository first: this folder's calibration.py must not shadow the calibration package
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 #: The five health parameters FD001's eight sensors observe together (a sixth, LPT flow, is
 #: reported unobservable by ``hyprog calibrate``).
@@ -152,10 +155,10 @@ def z_tables(rec: dict, std: dict, how: str) -> str:
     chans = rec["channels"]
     lines = ["Each condition left out: mean error / its std (the std of the mean prediction "
              "under the fit's posterior, the shared parameters and every engine's health, "
-             "and the readings' noise as the likelihood states it: "
-             f"calibration.adaptation.fleet_fit.mean_prediction_std; from {how}). A model "
-             "whose candidates and priors hold is within about 3; the std itself [%] is the "
-             "second table:", ""]
+             "the readings' noise, and the model's own error, shared by the samples of a "
+             "condition: calibration.adaptation.fleet_fit.mean_prediction_std; from "
+             f"{how}). A model whose candidates, priors and model error hold is within "
+             "about 3; the std itself [%] is the second table:", ""]
     for when in ("before", "after"):
         err = pd.DataFrame(rec["selection"]["mean_error_pct_condition_out"][when]).T
         sd = pd.DataFrame(std[when]).T

@@ -6,6 +6,7 @@ The fleets are simulated at C-MAPSS's six FD002 operating points (data_samples),
 with a manufacturing scatter of their health, C-MAPSS-like noise."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -325,6 +326,13 @@ def test_the_held_out_prediction_std_is_the_joint_posteriors(candidate_model, sh
     var = np.einsum("mi,ij,mj->m", f, cov, f) + fit.s_theta ** 2 * np.sum(own ** 2, axis=1)
     want = np.sqrt(var + np.sum(test.sigma ** 2, axis=0) / N ** 2)
     np.testing.assert_allclose(got, want, rtol=1e-6)
+    # the model's own error, part of each sample's sigma, is shared by the samples of the
+    # condition: it adds its mean's square whole, not averaged away like the noise
+    sd = 0.5 * test.sigma
+    shared_error = mean_prediction_std(fit, evt, replace(test, model_sd=sd), engine, okt)
+    np.testing.assert_allclose(shared_error ** 2 - got ** 2,
+                               sd.mean(axis=0) ** 2 - np.sum(sd ** 2, axis=0) / N ** 2,
+                               rtol=1e-6)
 
 
 def worst_z(oos: OutOfSample) -> dict:

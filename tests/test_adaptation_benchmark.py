@@ -35,3 +35,18 @@ def test_signature_interval_is_seeded_and_brackets_a_clear_signature(bench):
     assert (lo, hi) == bench.signature_interval(change, n=400, seed=3)
     assert lo < bench.hpc_signature(change) < hi
     assert lo > 1.5 and hi < 6.0
+
+
+def test_each_held_out_error_is_divided_by_its_own_std(bench):
+    """A record read back from JSON keys its conditions by strings; the std recorded beside
+    it (or recomputed) may use ints: each error is divided by the std of its own condition
+    and channel."""
+    err = {"1": {"T30": 0.5, "P30": -1.0}, "4": {"T30": 2.0, "P30": 3.0}}
+    rec = {"channels": ["T30", "P30"],
+           "selection": {"mean_error_pct_condition_out": {"before": err, "after": err}}}
+    std = {"before": {1: {"T30": 0.1, "P30": 0.5}, 4: {"T30": 1.0, "P30": 2.0}},
+           "after": {1: {"T30": 0.25, "P30": 0.25}, 4: {"T30": 4.0, "P30": 1.5}}}
+    text = bench.z_tables(rec, std, "a test")
+    assert "| condition 1 | 5.0 | -2.0 |" in text and "| condition 4 | 2.0 | 1.5 |" in text
+    assert "| condition 1 | 2.0 | -4.0 |" in text and "| condition 4 | 0.5 | 2.0 |" in text
+    assert "| condition 4 | 4.000 | 1.500 |" in text

@@ -68,5 +68,6 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
     ids, unit = np.unique(early["unit"].to_numpy(), return_inverse=True)
     data = FleetData(early[list(W_NAMES)].to_numpy(float), early[list(channels)].to_numpy(float),
                      sigma, unit.astype(int), tuple(int(u) for u in ids), cond.astype(int),
-                     early["cycle"].to_numpy(), tuple(channels))
+                     early["cycle"].to_numpy(), tuple(channels),
+                     model_error * np.abs(level) if model_error else None)
     return data, noise

@@ -53,9 +53,11 @@ REL_TOL = 1e-7
 @dataclass
 class FleetData:
     """Samples of a fleet: ``w`` (N, 4), ``y`` (N, m) readings of ``channels``, ``sigma``
-    (N, m) their noise std, ``unit`` (N,) engine index 0..U-1 (rows grouped by engine, in
-    order), ``units`` the engine ids, ``condition`` (N,) operating-condition label, ``cycle``
-    (N,)."""
+    (N, m) their std in the likelihood, ``unit`` (N,) engine index 0..U-1 (rows grouped by
+    engine, in order), ``units`` the engine ids, ``condition`` (N,) operating-condition
+    label, ``cycle`` (N,); ``model_sd`` (N, m) the part of ``sigma`` that is the model's own
+    error (:mod:`.data`; None: none), which the likelihood treats as independent per sample
+    but which is the same for every sample at one operating point."""
 
     w: np.ndarray
     y: np.ndarray
@@ -65,6 +67,7 @@ class FleetData:
     condition: np.ndarray
     cycle: np.ndarray
     channels: tuple
+    model_sd: np.ndarray | None = None
 
     def subset(self, rows) -> FleetData:
         """The samples ``rows`` (a mask or indices); engines renumbered, order kept."""
@@ -73,7 +76,8 @@ class FleetData:
         ids, inv = np.unique(self.unit[rows], return_inverse=True)
         return FleetData(self.w[rows], self.y[rows], self.sigma[rows], inv.astype(int),
                          tuple(self.units[i] for i in ids), self.condition[rows],
-                         self.cycle[rows], self.channels)
+                         self.cycle[rows], self.channels,
+                         None if self.model_sd is None else self.model_sd[rows])
 
     @property
     def n_units(self) -> int:
@@ -256,7 +260,7 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
 def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> np.ndarray:
     """Std (m,) of the difference between the mean prediction of every channel over the
     ``usable`` samples of ``data`` and the mean of their readings, under the posterior of
-    ``fit`` (Laplace, :class:`FleetFit`) and the likelihood's noise.
+    ``fit`` (Laplace, :class:`FleetFit`), the readings' noise and the model's own error.
 
     ``ev`` is the model's evaluation of ``data`` at ``fit``'s parameters with derivatives;
     ``engine`` (U_data,) the row of each of ``data``'s engines in ``fit.delta``, or -1 for an
@@ -266,15 +270,17 @@ def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> n
     its engine, independent across engines given ``phi``, through ``J_delta,n``; with
     ``N`` usable samples and ``a_u = sum_(n in u) J_delta,n / N``::
 
-        var_j = g_j cov g_j^T + sum_u a_u,j health_cov[u] a_u,j^T + sum_n sigma_nj^2 / N^2,
+        var_j = g_j cov g_j^T + sum_u a_u,j health_cov[u] a_u,j^T
+                + sum_n (sigma_nj^2 - s_nj^2) / N^2 + (sum_n s_nj / N)^2,
         g_j = sum_n G_n,j / N
 
-    (the prediction's variance from the shared parameters, from every engine's health, and
-    the readings' noise as the likelihood states it, the model's own error included as
-    independent per sample). A parameter held at a bound is treated as free (the curvature
-    at the optimum), so the std is the fit's own statement of how well it knows the
-    prediction; a mean error of many such stds says that the fit's candidates and priors do
-    not hold there."""
+    (the prediction's variance from the shared parameters and from every engine's health;
+    the readings' noise, which averages over the samples; the model's own error ``s =
+    data.model_sd``, which does not: the samples of one operating condition share it, Kennedy
+    & O'Hagan's discrepancy being a function of the operating point). A parameter held at a
+    bound is treated as free (the curvature at the optimum). The std is the fit's own
+    statement of how well it knows the prediction: a mean error of many such stds says that
+    its candidates, priors or model error do not hold there."""
     rows = np.flatnonzero(usable)
     if not len(rows):
         return np.full(len(data.channels), np.nan)
@@ -294,5 +300,7 @@ def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> n
         cu = fit.health_cov[eng[mine][0]] if eng[mine][0] >= 0 \
             else np.eye(k) * fit.s_theta ** 2
         var = var + np.einsum("mk,kl,ml->m", a, cu, a)
-    var = var + np.sum(data.sigma[rows] ** 2, axis=0) / n_rows ** 2
+    sd = np.zeros_like(data.sigma[rows]) if data.model_sd is None else data.model_sd[rows]
+    var = var + np.sum(data.sigma[rows] ** 2 - sd ** 2, axis=0) / n_rows ** 2 \
+        + sd.mean(axis=0) ** 2
     return np.sqrt(var)
