@@ -415,9 +415,8 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     t0 = time.perf_counter()
     source = None
     if isinstance(data, pd.DataFrame):
+        data = checked_frame(data)
         df_all, meta = data, {}
-        if "unit" not in df_all.columns:
-            raise InputError("data: a 'unit' column is needed to calibrate a fleet")
         if units is not None:
             missing = sorted(set(units) - set(df_all["unit"].unique()))
             if missing:
@@ -491,6 +490,22 @@ def with_data_noise(setup: CalibrationSetup, data, source: str | None) -> Calibr
     table = noise_from_data(df, sensors, source=where)
     rows = tuple((int(c), ch, float(table.loc[c, ch])) for c in table.index for ch in sensors)
     return replace(setup, noise_table=rows)
+
+
+def checked_frame(df: pd.DataFrame, source: str = "data") -> pd.DataFrame:
+    """A table given as a DataFrame checked and sorted as a file's rows are when read
+    (:func:`engine_model.datasets.schema.normalise_table`: integer units and cycles, numeric
+    channels, rows by unit, cycle, t), so that the estimates do not depend on the order of
+    its rows. A table without ``cycle`` (one series per unit, ordered by ``t``) is checked
+    with a placeholder cycle, dropped again."""
+    from engine_model.datasets.schema import normalise_table
+
+    if "unit" not in df.columns:
+        raise InputError(f"{source}: a 'unit' column is needed to calibrate a fleet")
+    if "cycle" in df.columns:
+        return normalise_table(df, source, keep_source_rows=False)
+    return normalise_table(df.assign(cycle=0), source, keep_source_rows=False) \
+        .drop(columns="cycle")
 
 
 def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,

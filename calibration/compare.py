@@ -40,7 +40,7 @@ from engine_model import datasets
 from engine_model.validation import InputError
 
 from .base import default_model
-from .calibrate_fleet import calibrate_fleet
+from .calibrate_fleet import calibrate_fleet, checked_frame
 from .crb import posterior_crb, unit_sensitivities, windowed_crb
 from .estimation_setup import CalibrationSetup
 from .series import prepare_unit
@@ -109,6 +109,7 @@ def compare(data, methods: Sequence[str] = DEFAULT_METHODS, setup: CalibrationSe
     setup = setup or CalibrationSetup()
     options = options or {}
     if isinstance(data, pd.DataFrame):
+        data = checked_frame(data)
         df_all = data if units is None else data[data["unit"].isin(units)]
         source = "data"
     else:

@@ -179,11 +179,20 @@ class CalibrationSetup:
             v = getattr(self, name)
             if np.ndim(v):
                 object.__setattr__(self, name, tuple(float(x) for x in np.ravel(v)))
-        _vec(self.prior_mean, len(params), "prior_mean")
-        if np.any(_vec(self.prior_std, len(params), "prior_std") <= 0):
-            raise InputError("prior_std must be positive")
-        if not (self.noise_scale > 0):
-            raise InputError(f"noise_scale must be positive, got {self.noise_scale}")
+        if not np.all(np.isfinite(_vec(self.prior_mean, len(params), "prior_mean"))):
+            raise InputError(f"prior_mean must be finite, got {self.prior_mean}")
+        std = _vec(self.prior_std, len(params), "prior_std")
+        if not np.all(np.isfinite(std) & (std > 0)):
+            raise InputError(f"prior_std must be positive and finite, got {self.prior_std}")
+        for name in ("noise_scale", "sample_period_s", "observability_rtol",
+                     "observability_max_std"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be positive and finite, got {v}")
+        if int(self.observability_samples) != self.observability_samples \
+                or self.observability_samples < 1:
+            raise InputError("observability_samples must be an integer >= 1, got "
+                             f"{self.observability_samples}")
         if self.noise not in ("model", "data"):
             raise InputError(f"noise must be 'model' or 'data', got {self.noise!r}")
         table = tuple((int(c), str(ch), float(v)) for c, ch, v in self.noise_table)
@@ -193,8 +202,8 @@ class CalibrationSetup:
             raise InputError("noise_table: every std must be positive and finite")
         object.__setattr__(self, "noise_table", table)
         object.__setattr__(self, "model_error", check_model_error(self.model_error))
-        if not (self.drift >= 0):
-            raise InputError(f"drift must be >= 0, got {self.drift}")
+        if not (self.drift >= 0 and np.isfinite(self.drift)):
+            raise InputError(f"drift must be >= 0 and finite, got {self.drift}")
         lo, hi = self.bounds
         if not lo < hi:
             raise InputError(f"bounds: lower {lo} must be below upper {hi}")
@@ -287,8 +296,14 @@ class CalibrationSetup:
         return replace(self, exclude_sensors=(*self.exclude_sensors, *extra))
 
     def with_params(self, params) -> CalibrationSetup:
-        """The same setup for a subset of its parameters (prior values carried over)."""
+        """The same setup for a subset of its parameters (prior values carried over); a
+        parameter left out (an unobservable one) is held at its prior mean, added to
+        :attr:`theta_fixed`, by every estimator alike."""
         params = tuple(params)
         pm, ps = self.prior_mean_vec(), self.prior_std_vec()
         sel = [self.params.index(q) for q in params]
-        return replace(self, params=params, prior_mean=tuple(pm[sel]), prior_std=tuple(ps[sel]))
+        held = {**dict(self.theta_fixed),
+                **{q: float(m) for q, m in zip(self.params, pm, strict=True)
+                   if q not in params}}
+        return replace(self, params=params, prior_mean=tuple(pm[sel]), prior_std=tuple(ps[sel]),
+                       theta_fixed=held)

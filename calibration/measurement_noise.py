@@ -57,6 +57,13 @@ def noise_from_data(df: pd.DataFrame, channels, condition: str = "condition",
         if c not in df.columns:
             raise InputError(f"{source}: no column {c!r} (noise from the data needs unit, "
                              f"cycle, {condition} and the channels)")
+    labels = pd.to_numeric(df[condition], errors="coerce").to_numpy(float)
+    bad = ~(np.isfinite(labels) & (labels == np.round(labels)))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{source}: row {i + 1}, column {condition} = {df[condition].iloc[i]}:"
+                         " an operating-condition label must be an integer (noise is "
+                         "estimated per condition)")
     early = df[df["cycle"] <= early_cycles]
     out = {}
     for cond, g in early.groupby(condition, sort=True):

@@ -286,7 +286,8 @@ def _new_diagnostics(per_cycle: bool, o: MHEOptions, mode: str, obs, n_fail: int
             "fisher_rank": obs.rank, "fisher_unit": obs.fisher.tolist(),
             "windows": 0, "iterations": [], "status": [], "window_starts": [],
             "window_ends": [],
-            "window_data_rank": [], "non_converged_windows": 0, "seconds_nlp": 0.0,
+            "window_data_rank": [], "non_converged_windows": 0, "n_nonconverged": 0,
+            "seconds_nlp": 0.0,
             "x_warm_start_failures": n_fail}
 
 
@@ -298,8 +299,9 @@ def _record_window(diag: dict, seg: Segment, sol, info_k: np.ndarray) -> None:
     diag["window_ends"].append(int(seg.assign_end))
     diag["seconds_nlp"] += sol.seconds
     diag["window_data_rank"].append(int(np.linalg.matrix_rank(info_k.sum(0))))
-    if not sol.success:
+    if not sol.success:  # its samples (those it assigns) count as not converged
         diag["non_converged_windows"] += 1
+        diag["n_nonconverged"] += int(seg.assign_end - seg.start)
 
 
 def _window_covariance(mode: str, info_k: np.ndarray, CtC: np.ndarray, d) -> np.ndarray:
@@ -318,6 +320,9 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
     unknowns and observability at the prior mean, then per segment a warm-started NLP, its
     covariance and the arrival cost of the next (module docstring)."""
     o = options
+    if not per_cycle and o.mode == "random_walk" and not setup.drift > 0:
+        raise InputError("mhe random_walk: the drift must be > 0 (theta walks by it between "
+                         "samples; with none, use mode 'constant')")
     t_start = time.perf_counter()
     ser = _kernel_series(series, p)
     n = len(ser.w)
@@ -413,7 +418,6 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
     resid = (series.y - y_hat[:, cols]) / series.sigma
     its = diag["iterations"]
     diag["mean_iterations"] = float(np.mean(its)) if its else 0.0
-    diag["n_nonconverged"] = diag["non_converged_windows"]
     diag["observable"] = list(obs.observable)
     timed(diag, t_start, n)
     diag["samples_per_second_nlp"] = n / diag["seconds_nlp"] if diag["seconds_nlp"] else None

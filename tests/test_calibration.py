@@ -249,6 +249,12 @@ def test_unobservable_parameters_are_reported_not_estimated(model, degraded):
     ({"params": ("HPT_eff",)}, "unknown health parameter(s) HPT_eff"),
     ({"sensors": ("T99",)}, "unknown sensor(s) T99"),
     ({"prior_std": 0.0}, "prior_std must be positive"),
+    ({"prior_std": float("nan")}, "prior_std must be positive and finite, got nan"),
+    ({"prior_mean": float("inf")}, "prior_mean must be finite"),
+    ({"sample_period_s": 0.0}, "sample_period_s must be positive"),
+    ({"observability_max_std": float("inf")}, "observability_max_std must be positive"),
+    ({"observability_samples": 0}, "observability_samples must be an integer >= 1"),
+    ({"drift": float("inf")}, "drift must be >= 0 and finite"),
     ({"drift_per": "day"}, "drift_per"),
 ])
 def test_setup_rejects_bad_values(kwargs, fragment):
@@ -256,6 +262,18 @@ def test_setup_rejects_bad_values(kwargs, fragment):
 
     with pytest.raises(InputError, match=fragment.replace("(", r"\(").replace(")", r"\)")):
         CalibrationSetup(**kwargs)
+
+
+def test_a_parameter_left_out_is_held_at_its_prior_mean():
+    """with_params (how an unobservable parameter is withheld) keeps a dropped parameter at
+    its prior mean for every estimator, not at zero."""
+    setup = CalibrationSetup(params=("HPT_eff_mod", "LPT_eff_mod"), prior_mean=(-0.004, 0.001),
+                             theta_fixed={"fan_eff_mod": 0.002})
+    fewer = setup.with_params(("LPT_eff_mod",))
+    base = fewer.theta_base()
+    assert base[THETA_NAMES.index("HPT_eff_mod")] == -0.004
+    assert base[THETA_NAMES.index("LPT_eff_mod")] == 0.001
+    assert base[THETA_NAMES.index("fan_eff_mod")] == 0.002
 
 
 def test_nan_and_missing_columns_name_unit_row_and_column(degraded):

@@ -27,6 +27,7 @@ from calibration.series import prepare_unit
 from cli.main import app
 from engine_model import datasets
 from engine_model.channels import PAPER_THETA
+from engine_model.validation import InputError
 from tests.conftest import REPO
 
 TINY = REPO / "data_samples" / "tiny"
@@ -335,3 +336,26 @@ def test_the_consistent_model_error_brings_the_mean_nis_per_channel_to_one(tmp_p
                                   str(tmp_path / "f"), "--model-error", "often"])
     assert_user_error(r, "--model-error often", code=None)
     assert not (tmp_path / "f").exists()
+
+
+def test_a_dataframe_is_checked_and_sorted_as_a_file_is(serial, small):
+    """The rows of a DataFrame in another order give the same estimates as the file (the
+    filter runs along each unit's rows, so they are sorted first); bad keys are one line."""
+    path, df = small
+    shuffled = df.sample(frac=1.0, random_state=0)
+    run = calibrate_fleet(shuffled, "ukf", SETUP, units=[2])
+    np.testing.assert_allclose(run.results[2].theta_hat.to_numpy(),
+                               serial.results[2].theta_hat.to_numpy(), rtol=1e-9, atol=1e-12)
+    for bad, fragment in ((df.assign(unit=df["unit"].astype(str) + "x"), "unit"),
+                          (df.assign(cycle=df["cycle"] + 0.5), "cycle"),
+                          (df.drop(columns="unit"), "'unit' column")):
+        with pytest.raises(InputError, match=fragment):
+            calibrate_fleet(bad, "ukf", SETUP)
+
+
+def test_the_datas_noise_needs_integer_condition_labels(small):
+    _, df = small
+    table = df.assign(condition=1)
+    table.loc[5, "condition"] = np.nan
+    with pytest.raises(InputError, match=r"row 6, column condition = nan"):
+        calibrate_fleet(table, "ukf", CalibrationSetup(drift=0.01, noise="data"))

@@ -296,3 +296,19 @@ def test_cli_discover_missing_data(tmp_path):
     r = CliRunner().invoke(app, ["discover", str(tmp_path / "nope"), "--out",
                                  str(tmp_path / "o")])
     assert r.exit_code == 2 and r.output.startswith("error:")
+
+
+def test_the_loop_walks_theta_by_the_flight_between_cycles_whatever_drift_per_says():
+    """The loop's theta is constant within a cycle and walks between cycles: the step at a
+    cycle start is the previous flight's duration, also under ``drift_per="time"`` (whose
+    series step there is one sample period)."""
+    from engine_model import datasets
+    from tests.conftest import REPO
+
+    df, _ = datasets.read_dataset(REPO / "data_samples" / "tiny", units=[1])
+    df = df[df["cycle"] <= 3].reset_index(drop=True)
+    by_cycle = unit_data(df, CalibrationSetup(drift_per="cycle"))
+    by_time = unit_data(df, CalibrationSetup(drift_per="time"))
+    np.testing.assert_allclose(by_time.tau_h, by_cycle.tau_h)
+    flights = df.groupby("cycle")["t"].agg(lambda t: t.max() - t.min()).to_numpy() / 3600
+    assert by_cycle.tau_h[0] == 0.0 and np.all(by_cycle.tau_h[1:] > 0.5 * flights[:-1])

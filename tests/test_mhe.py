@@ -272,3 +272,26 @@ def test_bad_options(model):
         get_estimator("mhe", model, window=10, stride=20)
     with pytest.raises(InputError, match="mode"):
         get_estimator("mhe", model, mode="sliding")
+    with pytest.raises(InputError, match="random_walk: the drift must be > 0"):
+        get_estimator("mhe", model, mode="random_walk").estimate(
+            _unit(model, END, n_flights=2)[0], CalibrationSetup(drift=0.0))
+
+
+def test_a_failed_window_counts_its_samples_as_not_converged():
+    """``n_nonconverged`` is in samples, as every estimator and the fleet summary read it;
+    the windows are counted apart."""
+    from types import SimpleNamespace
+
+    from calibration.mhe import Segment, _record_window
+
+    diag = {"windows": 0, "iterations": [], "status": [], "window_starts": [],
+            "window_ends": [], "seconds_nlp": 0.0, "window_data_rank": [],
+            "non_converged_windows": 0, "n_nonconverged": 0}
+    info = np.eye(3)[None].repeat(4, axis=0)
+    ok = SimpleNamespace(iterations=5, status="Solve_Succeeded", seconds=0.1, success=True)
+    bad = SimpleNamespace(iterations=3000, status="Maximum_Iterations_Exceeded", seconds=1.0,
+                          success=False)
+    _record_window(diag, Segment(0, 60, 50), ok, info)
+    _record_window(diag, Segment(50, 110, 100), bad, info)
+    _record_window(diag, Segment(100, 130, 130), bad, info)
+    assert diag["non_converged_windows"] == 2 and diag["n_nonconverged"] == 50 + 30

@@ -74,6 +74,12 @@ class UnitData:
 
 
 def unit_data(df: pd.DataFrame, setup: CalibrationSetup, source=None) -> UnitData:
+    """One unit's data for the loop. Its theta is constant within a cycle and walks between
+    cycles, by the drift over the previous cycle's duration: ``drift_per="cycle"`` whatever
+    the setup says (with ``"time"`` the series' step at a cycle start is one sample period,
+    not the flight between)."""
+    if "cycle" in df.columns and setup.drift_per != "cycle":
+        setup = replace(setup, drift_per="cycle")
     s = prepare_unit(df, setup, source)
     if s.cycle is None:
         cyc = np.zeros(len(s), int)
