@@ -120,3 +120,19 @@ def with_consistent_model_error(setup: CalibrationSetup, data, effects=(), units
                                 else str(data))
     e, nis = consistent_model_error(data, setup, effects, units, log)
     return replace(setup, model_error=e), nis
+
+
+def with_measured_noise(setup: CalibrationSetup, data, effects=(), units=None,
+                        consistent: bool = False, log=None) -> CalibrationSetup:
+    """The setup's R resolved for ``data`` as ``hyprog calibrate`` and ``hyprog discover``
+    resolve it: with ``consistent`` the consistent model error
+    (:func:`with_consistent_model_error`, the data's noise table first when ``noise ==
+    "data"``), else the data's noise table when ``noise == "data"``, else ``setup``."""
+    from .calibrate_fleet import with_data_noise
+
+    if consistent:
+        return with_consistent_model_error(setup, data, effects, units, log)[0]
+    if setup.noise == "data" and not setup.noise_table:
+        return with_data_noise(setup, data, None if isinstance(data, pd.DataFrame)
+                               else str(data))
+    return setup

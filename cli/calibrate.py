@@ -15,11 +15,14 @@ from typer.core import TyperGroup
 from cli.common import (
     APP_SETTINGS,
     CliError,
+    ModelError,
+    Noise,
     PlainUsageCommand,
     Quiet,
     console,
     echo_json,
     parse_list,
+    parse_model_error,
     parse_units,
     progress_bar,
     user_errors,
@@ -49,12 +52,7 @@ def _setup(params, sensors, drift, noise_scale, prior_std, drift_per, noise=None
     from engine_model.channels import THETA_NAMES
 
     p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
-    if model_error is not None:
-        try:
-            model_error = 0.0 if model_error == "consistent" else float(model_error)
-        except ValueError:
-            raise CliError(f"--model-error {model_error}: a relative std such as 0.003, or "
-                           "'consistent'") from None
+    model_error = parse_model_error(model_error)
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
                 drift=drift_value(drift), noise_scale=noise_scale,
                 prior_std=prior_std, drift_per=drift_per, noise=noise, model_error=model_error)
@@ -89,15 +87,6 @@ Drift = Annotated[str | None, typer.Option(
     "data by maximum likelihood (default: 1e-3).")]
 NoiseScale = Annotated[float | None, typer.Option(
     "--noise-scale", help="Multiplier of the documented sensor noise in R (default: 1).")]
-Noise = Annotated[Literal["model", "data"] | None, typer.Option(
-    "--noise", help="The sensor noise in R: 'model' (the simulator's documented noise) or "
-    "'data' (each sensor's std per operating condition, estimated from the data's early-life "
-    "cycles within units; needs a condition column, as a C-MAPSS import has) (default: "
-    "model).")]
-ModelError = Annotated[str | None, typer.Option(
-    "--model-error", help="The model's own error, a relative std added to the noise in "
-    "quadrature, or 'consistent': the one at which the filter's mean normalised innovation "
-    "squared per channel is 1 over the fleet (several calibrations) (default: 0).")]
 PriorStd = Annotated[float | None, typer.Option(
     "--prior-std", help="Prior std of theta (default: 0.02).")]
 DriftPer = Annotated[str | None, typer.Option(
@@ -145,7 +134,8 @@ def run(
     import warnings
 
     from calibration import UnobservableWarning
-    from calibration.calibrate_fleet import calibrate_fleet, with_data_noise
+    from calibration.calibrate_fleet import calibrate_fleet
+    from calibration.consistency import with_measured_noise
     from calibration.discrepancy.drift_mle import setup_with_drift_mle
     from calibration.unit_check import AT_BOUND, summarise_bound_hits
     from engine_model.channels import XS_NAMES
@@ -160,13 +150,11 @@ def run(
         if model_effects is not None:
             from calibration.adaptation import load_adapted
             adapted = load_adapted(model_effects)
-        if model_error == "consistent":
-            from calibration.consistency import with_consistent_model_error
-            setup, _ = with_consistent_model_error(
-                setup, data, adapted.effects if adapted else (), unit_list,
-                log=None if (as_json or quiet) else lambda m: console().print(m))
-        elif setup.noise == "data":  # before the drift's estimate, which needs it
-            setup = with_data_noise(setup, data, str(data))
+        # before the drift's estimate, which needs them
+        setup = with_measured_noise(
+            setup, data, adapted.effects if adapted else (), unit_list,
+            consistent=model_error == "consistent",
+            log=None if (as_json or quiet) else lambda m: console().print(m))
         setup = setup_with_drift_mle(drift, data, setup, unit_list)
         with progress_bar(f"calibrating ({method})", as_json or quiet) as update:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,

@@ -8,7 +8,7 @@ import json
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Annotated
+from typing import Annotated, Literal
 
 import typer
 from typer.core import TyperCommand
@@ -52,6 +52,27 @@ OVERWRITE_HELP = ("Replace --out even when hyprog did not write it (a file or fo
 #: ``--overwrite``, the same on every command that replaces its output (the ownership rule,
 #: :mod:`engine_model.runtime.ownership`): a parameter ``overwrite: Overwrite = False``.
 Overwrite = Annotated[bool, typer.Option("--overwrite", help=OVERWRITE_HELP)]
+Noise = Annotated[Literal["model", "data"] | None, typer.Option(
+    "--noise", help="The sensor noise in R: 'model' (the simulator's documented noise) or "
+    "'data' (each sensor's std per operating condition, estimated from the data's early-life "
+    "cycles within units; needs a condition column, as a C-MAPSS import has) (default: "
+    "model).")]
+ModelError = Annotated[str | None, typer.Option(
+    "--model-error", help="The model's own error, a relative std added to the noise in "
+    "quadrature, or 'consistent': the one at which the filter's mean normalised innovation "
+    "squared per channel is 1 over the fleet (several calibrations) (default: 0).")]
+
+
+def parse_model_error(text: str | None) -> float | None:
+    """``--model-error``: a number, or 'consistent' (0 here: found later from the data, by
+    :func:`calibration.consistency.with_measured_noise`); None when not given."""
+    if text is None:
+        return None
+    try:
+        return 0.0 if text == "consistent" else float(text)
+    except ValueError:
+        raise CliError(f"--model-error {text}: a relative std such as 0.003, or "
+                       "'consistent'") from None
 
 
 class CliError(Exception):

@@ -10,11 +10,14 @@ import typer
 
 from cli.common import (
     CliError,
+    ModelError,
+    Noise,
     Overwrite,
     Quiet,
     console,
     echo_json,
     parse_list,
+    parse_model_error,
     parse_units,
     user_errors,
 )
@@ -64,6 +67,8 @@ def discover(
     model_effects: Annotated[Path | None, typer.Option(
         "--model-effects", help="Adapted model (hyprog adapt --out FILE): look for what that "
         "model lacks.")] = None,
+    noise: Noise = None,
+    model_error: ModelError = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON report.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -79,6 +84,7 @@ def discover(
     """
     with user_errors(data, output=out):
         from calibration import CalibrationSetup
+        from calibration.consistency import with_measured_noise
         from calibration.discrepancy import DiscoverOptions
         from calibration.discrepancy import discover as run
         from calibration.discrepancy.candidates import check_names
@@ -92,7 +98,9 @@ def discover(
         from engine_model.runtime import output_lock
 
         p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
-        kw = {k: v for k, v in {"params": p, "sensors": s}.items() if v is not None}
+        kw = {k: v for k, v in {"params": p, "sensors": s, "noise": noise,
+                                "model_error": parse_model_error(model_error)}.items()
+              if v is not None}
         setup = CalibrationSetup(**kw)
         opts = DiscoverOptions(method=method, candidates=parse_list(candidates,
                                                                     "--candidates"),
@@ -106,7 +114,12 @@ def discover(
             fixed = tuple(load_adapted(model_effects).effects)
         check_report_target(out, overwrite, (data,))  # before the run, not after it
         with output_lock(out):  # one writer per report; released on Ctrl-C / SIGTERM too
-            df, _meta = read_dataset(data, units=unit_list)
+            df, meta = read_dataset(data, units=unit_list)
+            # R as hyprog calibrate resolves it, the dataset's not-physical channels left out
+            setup = with_measured_noise(setup, data, fixed, unit_list,
+                                        consistent=model_error == "consistent",
+                                        log=None if (as_json or quiet) else console().print)
+            setup = setup.for_dataset(meta)
             if "unit" not in df.columns:
                 df = df.assign(unit=1)
             if len(df) == 0:

@@ -458,7 +458,7 @@ def test_the_pipeline_calibrates_with_the_datas_noise_and_a_consistent_model_err
     config = tmp_path / "p.toml"
     config.write_text('[data]\ndev_units = [1, 2, 3]\ntest_units = [4]\n'
                       '[calibrate]\nnoise = "data"\nmodel_error = "consistent"\n'
-                      '[discover]\nenabled = false\n'
+                      '[discover]\ncandidates = ["inlet_loss"]\n'
                       '[train]\nmodel = "dcnn"\nwindow = 4\nepochs = 1\ninputs = ["hybrid"]\n')
     out = tmp_path / "run"
     r = runner.invoke(app, ["pipeline", str(data), "--config", str(config), "--out", str(out),
@@ -467,7 +467,33 @@ def test_the_pipeline_calibrates_with_the_datas_noise_and_a_consistent_model_err
     features = next(out.glob("stages/calibrate-*/features"))
     setup = read_metadata(features)["calibration"]["setup"]
     assert setup["noise"] == "data" and setup["noise_table"] and setup["model_error"] > 0
+    # the discover stage: the calibrate stage's R and sensors
+    found = json.loads(next(out.glob("stages/discover-*/report/discover.json")).read_text())
+    assert not {"P2", "Ps30", "phi"} & set(found["diagnostics"]["sensors"])
     config.write_text('[calibrate]\nmodel_error = "often"\n')
     r = runner.invoke(app, ["pipeline", str(data), "--config", str(config), "--out",
                             str(tmp_path / "never")])
     assert_user_error(r, "[calibrate]", "'consistent'", code=None)
+
+
+def test_discover_on_measured_data_uses_calibrates_r_and_sensors(runner, tmp_path):
+    """``hyprog discover --noise data``: the data's noise per condition, and the sensors
+    ``calibrate`` would use (the not-physical Ps30 and phi and the noiseless P2 left out);
+    the pipeline's discover stage takes its calibrate stage's R the same way."""
+    train = write_lines(tmp_path / "train_FD002.txt", noisy_fd002_lines(units=4, cycles=12))
+    data = tmp_path / "fd002"
+    assert runner.invoke(app, ["data", "import-cmapss", str(train), "--out",
+                               str(data)]).exit_code == 0
+    r = runner.invoke(app, ["discover", str(data), "--out", str(tmp_path / "rep"), "--noise",
+                            "data", "--model-error", "0.001", "--candidates", "inlet_loss",
+                            "--json"])
+    assert r.exit_code == 0, r.output
+    used = json.loads(r.stdout)["diagnostics"]["sensors"]
+    assert not {"P2", "Ps30", "phi"} & set(used) and {"T30", "T50", "P30"} <= set(used)
+    plain = runner.invoke(app, ["discover", str(data), "--out", str(tmp_path / "rep2"),
+                                "--candidates", "inlet_loss", "--json"])
+    assert plain.exit_code == 0, plain.output
+    assert "Ps30" not in json.loads(plain.stdout)["diagnostics"]["sensors"]
+    bad = runner.invoke(app, ["discover", str(data), "--out", str(tmp_path / "rep3"),
+                              "--model-error", "often"])
+    assert_user_error(bad, "--model-error often", code=None)

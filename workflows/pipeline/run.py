@@ -171,7 +171,7 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
     if cfg["discover"]["enabled"]:
         dconf = {"discover": {k: v for k, v in cfg["discover"].items() if k != "augment"},
                  "calibrate": cfg["calibrate"], "seed": seed}
-        disc = step("discover", dconf, base, stages.discover, data)
+        disc = step("discover", dconf, base, stages.discover, data, summaries["calibrate"])
     augment = cfg["discover"]["augment"] and disc is not None
     fin = {"calibrate": cal["fp"], **({"discover": disc["fp"]} if augment else {})}
     feats = step("features", {"augment": augment, "data": data_cfg,

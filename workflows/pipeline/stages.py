@@ -236,6 +236,7 @@ def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
     res = _calibrate_into(ctx, folder / "features", data)
     return _round_trip({"table": ctx.rel(folder / "features"), "method": c["method"],
                         "params": list(res.setup.params), "sensors": list(res.sensors),
+                        "model_error": res.setup.model_error,
                         "samples": res.samples, "seconds": res.seconds,
                         "units": {u: {"samples": v["samples"],
                                       "n_nonconverged": v["n_nonconverged"]}
@@ -243,9 +244,14 @@ def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
                         "resumed_units": res.skipped, "warnings": list(res.warnings)})
 
 
-def discover(ctx: Context, folder: Path, data: Path) -> dict:
-    """The discrepancy loop on the data; its report in ``folder/report``."""
-    from calibration import CalibrationSetup
+def discover(ctx: Context, folder: Path, data: Path, calibrated: dict) -> dict:
+    """The discrepancy loop on the data; its report in ``folder/report``. Its R and sensors
+    are the calibrate stage's (``calibrated``: its summary): the same noise, the model error
+    that stage used (found there when ``model_error = "consistent"``), the data's noise table
+    recomputed from the same rows, the dataset's not-physical channels left out."""
+    from dataclasses import replace
+
+    from calibration.consistency import with_measured_noise
     from calibration.discrepancy import DiscoverOptions
     from calibration.discrepancy import discover as run
     from calibration.discrepancy.candidates import check_names
@@ -254,15 +260,14 @@ def discover(ctx: Context, folder: Path, data: Path) -> dict:
 
     c = ctx.config["discover"]
     cal = calibration_setup(ctx.config)
-    setup = CalibrationSetup(params=cal.params, sensors=cal.sensors,
-                             noise_scale=cal.noise_scale, prior_std=cal.prior_std,
-                             drift=cal.drift)
+    setup = replace(cal, model_error=calibrated.get("model_error", cal.model_error))
     opts = DiscoverOptions(method=c["method"],
                            candidates=None if c["candidates"] is None else tuple(c["candidates"]),
                            alpha=c["alpha"], max_effects=c["max_effects"], drift=c["drift"],
                            n_draws=c["n_draws"], seed=ctx.config["pipeline"]["seed"])
     check_names(opts.candidates)
-    df, _ = _read(data, ctx.config["data"]["units"])
+    df, meta = _read(data, ctx.config["data"]["units"])
+    setup = with_measured_noise(setup, data).for_dataset(meta)
     frames = [g for _, g in df.groupby("unit", sort=True)]
     say = None if ctx.quiet else (lambda msg: ctx.log(f"  {msg}"))
     adapted = ctx.adapted
