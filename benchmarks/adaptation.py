@@ -20,7 +20,8 @@ it changes: the model's error per condition, the health of new engines, FD001's 
    the HPC parameters move against the largest of the others (:func:`hpc_signature`) and
    its bootstrap interval over units;
 4. ``hyprog discover`` on the 85 FD002 engines' first 40 cycles (3,400 samples), with the
-   unadapted and the adapted model: wall time, verdict and what it adds.
+   unadapted and the adapted model, R as in sections 2 and 3 (``--noise``,
+   ``--model-error``): wall time, verdict, what it adds, and the residual before and after.
 
 Every figure is printed as a table and, with ``--results``, written there. ``--noise`` and
 ``--model-error`` are ``hyprog calibrate``'s, for the calibrations of sections 2 and 3; by
@@ -285,7 +286,10 @@ def main(argv=None) -> int:
     report += [f"| {k} | {lo:.2f} - {hi:.2f} |" for k, (lo, hi) in intervals.items()]
     report += [""]
     report += ["## 4. hyprog discover on the FD002 engines' first 40 cycles", "",
-               "| model | samples | wall s | verdict | added |", "|---|---|---|---|---|"]
+               f"R: {' '.join(noise) or 'the simulator noise'} (as sections 2, 3); chi2 per "
+               "degree of freedom of the whitened residual before and after the loop.", "",
+               "| model | samples | sensors | wall s | verdict | added | chi2/dof before | "
+               "after |", "|---|---|---|---|---|---|---|---|"]
     first40 = args.work / "fd002-first40"
     if not first40.exists():
         from engine_model.datasets import read_dataset, write_parquet
@@ -295,12 +299,14 @@ def main(argv=None) -> int:
         out = args.work / f"discover-{model}"
         extra = [] if path is None else ["--model-effects", str(path)]
         t0 = time.perf_counter()
-        hyprog("discover", str(first40), "--out", str(out), "--overwrite", *extra)
+        hyprog("discover", str(first40), "--out", str(out), "--overwrite", *extra, *noise)
         wall = time.perf_counter() - t0
         d = json.loads((out / "discover.json").read_text())
         added = ", ".join(f["spec"] for f in d["found"]) or "-"
-        report.append(f"| {model} | {d['diagnostics']['samples']} | {wall:.0f} | "
-                      f"{d['verdict']} | {added} |")
+        report.append(f"| {model} | {d['diagnostics']['samples']} | "
+                      f"{', '.join(d['diagnostics']['sensors'])} | {wall:.0f} | "
+                      f"{d['verdict']} | {added} | {d['before']['chi2_per_dof']:.3g} | "
+                      f"{d['after']['chi2_per_dof']:.3g} |")
     text = "\n".join(report)
     print(text)
     if args.results is not None:

@@ -86,6 +86,7 @@ import pandas as pd
 
 from engine_model import datasets, runtime
 from engine_model.datasets.fingerprint import rows_fingerprint
+from engine_model.datasets.provenance import is_feature_table
 from engine_model.runtime.cluster import executor
 from engine_model.runtime.shared_model import process_model
 from engine_model.validation import InputError
@@ -255,12 +256,6 @@ def _first_difference(stored: dict, now: dict) -> str | None:
         if a.get(k) != b.get(k):
             return f"{k} is {a.get(k)!r} there, {b.get(k)!r} now"
     return None
-
-
-def is_feature_table(path: Path) -> bool:
-    """``path`` is a feature table hyprog wrote: a hyprog dataset whose metadata has the
-    ``calibration`` entry."""
-    return datasets.written_by_hyprog(path) and "calibration" in datasets.read_metadata(path)
 
 
 #: A feature table (the ownership rule's kind): written into unit by unit and resumed, never
@@ -508,6 +503,21 @@ def checked_frame(df: pd.DataFrame, source: str = "data") -> pd.DataFrame:
         .drop(columns="cycle")
 
 
+def check_labels(frame: pd.DataFrame, unit: int, source) -> None:
+    """A unit's ``RUL`` (carried into the feature table, which the networks learn from) is
+    finite and not negative where it is given: a NaN in one unit would leave a table whose
+    units disagree on the column's type."""
+    if "RUL" not in frame.columns:
+        return
+    v = pd.to_numeric(frame["RUL"], errors="coerce").to_numpy(float)
+    bad = ~(np.isfinite(v) & (v >= 0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        where = f"{source}: " if source else ""
+        raise InputError(f"{where}unit {unit}, row {i + 1}: column RUL = {frame['RUL'].iloc[i]}"
+                         " (the remaining useful life must be a finite number >= 0)")
+
+
 def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
                  check_data: bool = True, effects: Sequence[str] = ()) -> dict[int, dict]:
     """Read and check every unit once, before any output is touched (module docstring):
@@ -534,6 +544,7 @@ def check_inputs(data, df_all, lengths, setup: CalibrationSetup, source,
     for u, frame in _units_of(data, df_all, lengths):
         try:
             series = prepare_unit(frame, setup, source)  # bad input: an error before any work
+            check_labels(frame, u, source)
         except InputError:
             flush()
             raise

@@ -160,6 +160,8 @@ class CalibrationSetup:
         if self.sensors is not None:
             sensors = (self.sensors,) if isinstance(self.sensors, str) else tuple(self.sensors)
             object.__setattr__(self, "sensors", sensors)
+            if len(set(sensors)) != len(sensors):
+                raise InputError(f"sensors listed twice: {', '.join(sensors)}")
             bad = [c for c in sensors if c not in XS_NAMES]
             if bad:
                 raise InputError(f"unknown sensor(s) {', '.join(bad)}; measured channels are "

@@ -113,7 +113,7 @@ class MHEOptions:
             raise InputError(f"mhe mode {self.mode!r}: one of {', '.join(MODES)}")
         if self.hessian not in HESSIANS:
             raise InputError(f"mhe hessian {self.hessian!r}: one of {', '.join(HESSIANS)}")
-        stride = self.stride or self.window
+        stride = self.window if self.stride is None else self.stride
         if self.window < 2 or not 1 <= stride <= self.window:
             raise InputError(f"mhe window {self.window}, stride {stride}: need window >= 2 "
                              "and 1 <= stride <= window")

@@ -347,8 +347,9 @@ def parse_list(text: str | None, option: str) -> tuple[str, ...] | None:
 
 
 def parse_units(text: str | None, option: str = "--units") -> list[int] | None:
-    """``"2,5,10"`` -> ``[2, 5, 10]``; None (all units) when the option was not given."""
-    if not text:
+    """``"2,5,10"`` -> ``[2, 5, 10]``; None (all units) when the option was not given (an
+    empty value is an error, not "all")."""
+    if text is None:
         return None
     try:
         units = [int(u) for u in text.split(",") if u.strip()]

@@ -48,12 +48,13 @@ def evaluate(
       hyprog evaluate models/cnn features.parquet --json
     """
     from engine_model.datasets import read_dataset
+    from prognostics.splits import metadata_units
 
     with caught_warnings() as warned:
         rul = load_model_checked(model_dir)
         with user_errors(features):
             df, meta = read_dataset(features)
-            test = parse_units(units) or [int(u) for u in meta.get("test_units") or []]
+            test = parse_units(units) or metadata_units(meta, "test_units", str(features))
             if not test:
                 raise CliError(f"{features}: the metadata names no test_units; pass --units")
             with progress_bar("evaluating (windows x members)", quiet or as_json) as update:

@@ -31,9 +31,10 @@ import pandas as pd
 from engine_model.datasets.jsonable import json_default
 from engine_model.runtime.atomic import atomic_output, atomic_outputs
 from engine_model.runtime.ownership import OWNED_FILE, OutputKind
+from engine_model.validation import InputError
 
 #: Columns of ``predict``'s per-sample table (those after ``cycle`` when the data have them).
-PREDICTION_COLUMNS = ("unit", "cycle", "t", "RUL", "RUL_pred", "RUL_std", "RUL_lower",
+PREDICTION_COLUMNS = ("unit", "cycle", "t", "RUL", "hs", "RUL_pred", "RUL_std", "RUL_lower",
                       "RUL_upper")
 #: Columns of ``predict``'s per-cycle table (:func:`prognostics.metrics.per_cycle`).
 PER_CYCLE_COLUMNS = ("unit", "cycle", "RUL", "mean", "min", "max", "n", "lower", "upper")
@@ -118,6 +119,8 @@ PER_CYCLE = OutputKind("a hyprog per-cycle prediction table", directory=False,
 def per_cycle_path(out: str | os.PathLike) -> Path:
     """``preds.csv`` -> ``preds.per_cycle.csv`` (same format as ``out``)."""
     out = Path(out)
+    if not out.name:
+        raise InputError(f"--out {str(out)!r}: a file name is needed (e.g. rul.csv)")
     return out.with_name(f"{out.stem}.per_cycle{out.suffix}")
 
 

@@ -122,6 +122,19 @@ def segments(unit: np.ndarray, roles: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return starts, ends
 
 
+def metadata_units(meta: dict | None, key: str, source: str = "table") -> list[int] | None:
+    """The metadata's list of units under ``key`` (``dev_units``, ``test_units``), None when
+    absent; anything but a list of unit numbers is an error naming it."""
+    listed = (meta or {}).get(key)
+    if listed is None:
+        return None
+    if not isinstance(listed, (list, tuple)) or not all(
+            isinstance(u, (int, np.integer)) and not isinstance(u, bool) for u in listed):
+        raise InputError(f"{source}: metadata {key} must be a list of unit numbers, got "
+                         f"{listed!r}")
+    return [int(u) for u in listed]
+
+
 def development_and_test_units(present: Sequence[int], metadata: dict | None,
                                units: Sequence[int] | None = None,
                                test_units: Sequence[int] | None = None,
@@ -134,17 +147,12 @@ def development_and_test_units(present: Sequence[int], metadata: dict | None,
     """
     meta = metadata or {}
     present_set = set(int(u) for u in present)
-    for key in ("dev_units", "test_units"):
-        listed = meta.get(key)
-        if listed is not None and (not isinstance(listed, (list, tuple)) or not all(
-                isinstance(u, (int, np.integer)) and not isinstance(u, bool) for u in listed)):
-            raise InputError(f"{source}: metadata {key} must be a list of unit numbers, got "
-                             f"{listed!r}")
     if test_units is None:
-        test_units = [int(u) for u in meta.get("test_units") or [] if int(u) in present_set]
+        test_units = [u for u in metadata_units(meta, "test_units", source) or []
+                      if u in present_set]
     test = _check_listed(test_units, present_set, "test", source)
     if units is None:
-        listed = meta.get("dev_units")
+        listed = metadata_units(meta, "dev_units", source)
         if listed:
             units = [int(u) for u in listed if int(u) in present_set]
         else:

@@ -132,6 +132,10 @@ class TrainConfig:
         c = replace(self,
                     window=DEFAULT_WINDOW[self.model] if self.window is None else self.window)
         check_seed(c.seed)
+        if c.device not in ("auto", "cpu", "cuda"):
+            raise InputError(f"device must be auto, cpu or cuda, got {c.device!r}")
+        if not 0.0 <= c.val_fraction < 1.0:  # (NaN fails too)
+            raise InputError(f"validation fraction must lie in [0, 1), got {c.val_fraction}")
         for name in ("window", "stride", "epochs", "batch_size", "patience"):
             v = getattr(c, name)
             if v is not None and int(v) < 1:

@@ -488,8 +488,16 @@ def test_discover_on_measured_data_uses_calibrates_r_and_sensors(runner, tmp_pat
                             "data", "--model-error", "0.001", "--candidates", "inlet_loss",
                             "--json"])
     assert r.exit_code == 0, r.output
-    used = json.loads(r.stdout)["diagnostics"]["sensors"]
+    rep = json.loads(r.stdout)
+    used = rep["diagnostics"]["sensors"]
     assert not {"P2", "Ps30", "phi"} & set(used) and {"T30", "T50", "P30"} <= set(used)
+    # one sample per flight: each held-out flight's residual has m - k degrees of freedom
+    # (its own theta fitted), not minus every flight's theta (which left none)
+    b = rep["before"]
+    assert b["on"] == "held-out flights"
+    k, m = len(rep["diagnostics"]["params"]), len(used)
+    rms = sum(c["rmse"] ** 2 for c in b["channels"].values())
+    assert b["chi2_per_dof"] == pytest.approx(rms / (m - k), rel=1e-9)
     plain = runner.invoke(app, ["discover", str(data), "--out", str(tmp_path / "rep2"),
                                 "--candidates", "inlet_loss", "--json"])
     assert plain.exit_code == 0, plain.output

@@ -49,6 +49,9 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
     """``(FleetData, noise table)`` of the early-life rows of ``units`` (default all); each
     sample's std the noise and ``model_error`` combined (module docstring)."""
     model_error = check_model_error(model_error)
+    twice = sorted({c for c in channels if list(channels).count(c) > 1})
+    if twice:
+        raise InputError(f"{source}: channel(s) {', '.join(twice)} listed twice")
     missing = [c for c in (*W_NAMES, *channels) if c not in df.columns]
     if missing:
         raise InputError(f"{source}: missing column(s) {', '.join(missing)}")

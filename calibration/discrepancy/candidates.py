@@ -112,20 +112,19 @@ def _make(effect: Effect, channel=None) -> Candidate:
                      tuple(fixed), channel, valid=np.array(valid, float).reshape(-1, 2))
 
 
-def check_names(names=None) -> tuple:
+def check_names(names=None, what: str = "--candidates") -> tuple:
     """The registry names to test (default: the library's), each checked: known, and not a
-    series effect."""
+    series effect; ``what`` names the option in a message."""
     reg = registry()
     tested_names = tuple(names) if names is not None else STEADY_DEFAULT + SENSOR_DEFAULT
     if not tested_names:
-        raise InputError("--candidates: empty list")
+        raise InputError(f"{what}: empty list")
     for n in tested_names:
         if n not in reg:
-            raise InputError(f"--candidates: unknown effect {n!r}; known: "
-                             f"{', '.join(sorted(reg))}")
+            raise InputError(f"{what}: unknown effect {n!r}; known: {', '.join(sorted(reg))}")
         if reg[n].series:
-            raise InputError(f"--candidates: {n} is a series effect (it acts on the time "
-                             "series, not on the steady model); it cannot be score-tested")
+            raise InputError(f"{what}: {n} is a series effect (it acts on the time series, not "
+                             "on the steady model); it cannot be score-tested")
     return tested_names
 
 

@@ -12,7 +12,7 @@ import pandas as pd
 from calibration.base import ESTIMATORS
 from calibration.estimation_setup import CalibrationSetup
 from engine_model.channels import THETA_NAMES
-from engine_model.validation import InputError
+from engine_model.validation import InputError, check_seed
 
 from . import identifiability as ident
 from .candidates import CandidateModel, build_candidates
@@ -52,6 +52,7 @@ class DiscoverOptions:
     holdout_every: int = 3
 
     def __post_init__(self):
+        check_seed(self.seed, "discover seed")
         if self.method != "coarse" and self.method not in ESTIMATORS:
             raise InputError(f"method {self.method!r}: 'coarse' or one of "
                              f"{', '.join(ESTIMATORS)}")
@@ -115,12 +116,21 @@ class Discovery:
 
 def _channel_stats(problem: Problem, state: FitState, masks=None) -> dict:
     """Per channel on the (masked) samples: RMSE and bias of the whitened residual (noise
-    units), lag-1 autocorrelation within flights, and chi^2 per degree of freedom overall."""
+    units), lag-1 autocorrelation within flights, and chi^2 per degree of freedom overall.
+
+    The degrees of freedom are the samples' residuals less what was fitted to them: on every
+    sample, every flight's theta and the shared parameters; on held-out flights (``masks``),
+    only those flights' own theta (the shared parameters were estimated without them). With
+    one sample per flight (C-MAPSS) the flights' theta are a large part of the count: taking
+    every flight's off the held-out samples' residuals left no degree of freedom (and a
+    chi^2 "per dof" that was the plain sum)."""
     lin = problem.masked(state.lin, masks)  # the fit's own residual: no model run
     es, lag = [], []
+    held_flights = 0
     for i, (u, e) in enumerate(zip(problem.units, lin.e, strict=True)):
         sel = lin.ok[i] & (masks[i] > 0 if masks is not None else True)
         es.append(e[sel])
+        held_flights += len(np.unique(u.cyc[sel]))
         cyc = u.cyc[sel]
         same = cyc[1:] == cyc[:-1]
         lag.append((e[sel][1:][same], e[sel][:-1][same]))
@@ -134,7 +144,9 @@ def _channel_stats(problem: Problem, state: FitState, masks=None) -> dict:
         ch[s] = {"rmse": float(np.sqrt(np.mean(e[:, j] ** 2))) if n else None,
                  "bias": float(np.mean(e[:, j])) if n else None,
                  "lag1": float(np.sum(a[:, j] * b[:, j]) / den) if n else None}
-    dof = max(n * problem.m - (problem.n_theta + len(state.free)), 1)
+    fitted = problem.k * held_flights if masks is not None \
+        else problem.n_theta + len(state.free)
+    dof = max(n * problem.m - fitted, 1)
     return {"samples": int(n), "chi2_per_dof": float(np.sum(e * e) / dof), "channels": ch}
 
 

@@ -41,7 +41,7 @@ from engine_model.runtime.atomic import atomic_output
 from ..validation import InputError, check_columns
 from .metadata import META_KEY, metadata_for_write, metadata_json, parse_metadata
 from .paths import PARQUET_MAGIC, PARQUET_PART, existing_path, file_magic
-from .provenance import PARQUET_DATASET, UNIT_PARTITION
+from .provenance import PARQUET_DATASET, PARQUET_FEATURES, UNIT_PARTITION
 from .schema import (
     REQUIRED_COLUMNS,
     SOURCE_ROW,
@@ -106,7 +106,8 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
     meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
     units = table["unit"].to_numpy()
     body = table.drop(columns="unit")
-    with atomic_output(path, PARQUET_DATASET, overwrite, inputs) as tmp:
+    kind = PARQUET_FEATURES if "calibration" in (metadata or {}) else PARQUET_DATASET
+    with atomic_output(path, kind, overwrite, inputs) as tmp:
         for unit, rows in _unit_slices(units):
             _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
     return path

@@ -5,8 +5,10 @@ A parquet directory whose part files carry the ``hyprog`` metadata, or an h5 / p
 with it (:data:`.metadata.META_KEY`), is a dataset hyprog wrote: a writer of the same kind may
 replace it as a whole. In a parquet directory hyprog writes only ``unit=<n>/part-0.parquet``
 (:func:`dataset_layout`); any other entry is the user's and makes a replacement a refusal
-unless ``--overwrite``. :data:`PARQUET_DATASET` and :data:`H5_DATASET` are the two kinds;
-:func:`check_dataset_output` is the ownership rule for either.
+unless ``--overwrite``. :data:`PARQUET_DATASET` and :data:`H5_DATASET` are the two kinds of
+data, and :data:`PARQUET_FEATURES` a feature table (the data with ``hyprog calibrate``'s
+record), which only a feature table replaces; :func:`check_dataset_output` is the ownership
+rule for data.
 """
 
 from __future__ import annotations
@@ -66,15 +68,29 @@ def written_by_hyprog(path: Path) -> bool:
     return False
 
 
+def is_feature_table(path: Path) -> bool:
+    """``path`` is a feature table hyprog wrote: a hyprog dataset whose metadata has the
+    ``calibration`` entry (``hyprog calibrate``'s output)."""
+    from .dispatch import read_metadata
+
+    return written_by_hyprog(path) and "calibration" in read_metadata(path)
+
+
 def dataset_layout(path: Path) -> list[str]:
     """The files hyprog writes in a parquet dataset directory: ``unit=<n>/part-0.parquet``."""
     return [f"{d.name}/{PARQUET_PART}" for d in path.glob("unit=*")
             if d.name[5:].lstrip("-").isdigit() and (d / PARQUET_PART).is_file()]
 
 
-#: A hyprog parquet dataset (a directory partitioned by unit).
-PARQUET_DATASET = OutputKind("a hyprog parquet dataset", directory=True, ours=written_by_hyprog,
-                             layout=dataset_layout)
+#: A hyprog parquet dataset (a directory partitioned by unit) that is not a feature table: a
+#: writer of data (simulate, import) never replaces a feature table without ``--overwrite``.
+PARQUET_DATASET = OutputKind("a hyprog parquet dataset (not a feature table)", directory=True,
+                             ours=lambda path: written_by_hyprog(path)
+                             and not is_feature_table(path), layout=dataset_layout)
+#: A feature table written whole (:func:`.parquet.write_parquet` of a table with the
+#: ``calibration`` record): it replaces only a feature table.
+PARQUET_FEATURES = OutputKind("a hyprog feature table", directory=True, ours=is_feature_table,
+                              layout=dataset_layout)
 #: One unit's partition ``unit=<n>/`` inside a dataset being written unit by unit (a resumable
 #: writer's): replaced when it holds its part file and nothing else.
 UNIT_PARTITION = OutputKind("a unit's partition", directory=True,
@@ -91,5 +107,5 @@ def check_dataset_output(path: str | os.PathLike, directory: bool, overwrite: bo
     return check_output(path, PARQUET_DATASET if directory else H5_DATASET, overwrite, inputs)
 
 
-__all__ = ["H5_DATASET", "PARQUET_DATASET", "UNIT_PARTITION", "check_dataset_output",
-           "dataset_layout", "written_by_hyprog"]
+__all__ = ["H5_DATASET", "PARQUET_DATASET", "PARQUET_FEATURES", "UNIT_PARTITION",
+           "check_dataset_output", "dataset_layout", "is_feature_table", "written_by_hyprog"]

@@ -178,6 +178,10 @@ class Effect:
         :mod:`engine_model.physics.effect_library`); 0 means unchanged within 1e-9 relative.
     series : bool
         True for an effect on the output time series (not part of the steady model).
+    shape_params : tuple of str
+        Parameters that shape the effect but do not size it (``reynolds``' ``flow_ratio``):
+        with every other one at its neutral default the effect changes nothing
+        (:meth:`is_neutral`).
     """
 
     name: str = ""
@@ -187,6 +191,7 @@ class Effect:
     moves: tuple = ()
     signature: dict = {}
     series: bool = False
+    shape_params: tuple = ()
 
     def __init__(self, **values):
         known = {q.name for q in self.params}
@@ -210,6 +215,9 @@ class Effect:
                 raise EffectSpecError(f"effect {self.name}: parameter {q.name!r} must be"
                                       f" finite, got {v!r}")
             q.check(self.name, v)
+            if q.kind == "context" and v != q.default:
+                raise EffectSpecError(f"effect {self.name}: {q.name} is supplied row by row "
+                                      f"(a context parameter), not in the specification")
             self.values[q.name] = v
 
     # ---------------------------------------------------------------- steady effects
@@ -241,8 +249,10 @@ class Effect:
         return {"name": self.registry_name, "params": {**self.opts, **self.values}}
 
     def is_neutral(self) -> bool:
-        """Every parameter at its neutral default: the effect changes nothing."""
-        return all(self.values[q.name] == q.default for q in self.params)
+        """Every parameter that sizes the effect at its neutral default (the context and
+        :attr:`shape_params` ones aside): the effect changes nothing."""
+        return all(self.values[q.name] == q.default for q in self.params
+                   if q.kind == "model" and q.name not in self.shape_params)
 
     def typical_spec(self) -> str:
         """This effect's specification with every model parameter at its typical size (the
@@ -318,8 +328,8 @@ class EffectSet:
         names = [e.name for e in effects]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
-            raise ValueError(f"effect {dup[0]!r} given more than once; give instances distinct"
-                             " names (e.g. sensor_bias on different channels)")
+            raise EffectSpecError(f"effect {dup[0]!r} given more than once; give instances "
+                                  "distinct names (e.g. sensor_bias on different channels)")
         self.effects = [e for e in effects if not e.series]
         self.series = [e for e in effects if e.series]
         self.param_names = tuple(f"{e.name}.{q.name}" for e in self.effects for q in e.params)

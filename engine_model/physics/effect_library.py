@@ -181,6 +181,7 @@ class Reynolds(Effect):
     moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
     signature = {"SLS": {"Wf": 0, "T48": 0, "T50": 0, "Nc": 0},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1}}
+    shape_params = ("flow_ratio",)  # with n = 0 nothing changes, whatever the ratio
 
     @staticmethod
     def rni(T_in, P_in, T_in_des, P_in_des):

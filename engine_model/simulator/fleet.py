@@ -295,6 +295,9 @@ def check_effects(effects) -> None:
     """Every effect switched on injects something: one whose parameters are all at their
     neutral defaults would leave the fleet without it, silently (an error naming its typical
     size instead)."""
+    from engine_model.physics.effect_base import EffectSet
+
+    EffectSet(effects)  # an effect given twice: one line, before anything is written
     for e in effects:
         if e.is_neutral():
             raise InputError(f"effect {e.spec()}: every parameter is at its neutral default, "

@@ -203,9 +203,11 @@ def check_values(config: dict, source: str = "config") -> None:
     after an hour of calibration wastes the hour), by the library objects that will use them,
     their messages prefixed with ``source: [table]``. What needs the data (units, input
     columns) is checked by the pipeline's data step, also before any stage."""
+    from calibration.discrepancy.candidates import check_names
     from calibration.discrepancy.loop import DiscoverOptions
     from engine_model.physics.effects import parse_effect_spec
     from engine_model.simulator.fleet import check_effects, check_rate
+    from engine_model.validation import check_seed
 
     def check(table: str, fn) -> None:
         try:
@@ -226,7 +228,11 @@ def check_values(config: dict, source: str = "config") -> None:
         raise InputError(f"{source}: [calibrate] method must be one of "
                          f"{', '.join(ESTIMATORS)}, got {c['method']!r}")
     check("calibrate", lambda: calibration_setup(config))
+    if not c["drift"] > 0:  # theta's random walk: the discover stage's prior between cycles
+        raise InputError(f"{source}: [calibrate] drift must be > 0, got {c['drift']}")
     d = config["discover"]
+    if d["candidates"] is not None:
+        check("discover", lambda: check_names(d["candidates"], "candidates"))
     if d["n_draws"] < 1:
         raise InputError(f"{source}: [discover] n_draws must be >= 1, got {d['n_draws']}")
     check("discover", lambda: DiscoverOptions(method=d["method"], alpha=d["alpha"],
@@ -236,6 +242,7 @@ def check_values(config: dict, source: str = "config") -> None:
     if sim["rate_hz"] is not None:
         check("simulate", lambda: check_rate(sim["rate_hz"]))
     check("simulate", lambda: check_effects([parse_effect_spec(e) for e in sim["effects"]]))
+    check("simulate", lambda: check_seed(sim["seed"]))
     dc = config["data"]
     if dc["dev_units"] is not None and dc["test_units"] is not None:
         both = sorted(set(dc["dev_units"]) & set(dc["test_units"]))

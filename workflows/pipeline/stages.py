@@ -159,9 +159,15 @@ def check_data_against_config(ctx: Context, data: Path) -> None:
                          f"not in {data} (its units: {', '.join(map(str, present))})")
     chosen = [u for u in present if dc["units"] is None or u in dc["units"]]
     try:
-        split_units(chosen, read_metadata(data), dc, source)
+        split = split_units(chosen, read_metadata(data), dc, source)
     except InputError as e:
         raise InputError(f"{e} ({data}: unit(s) {', '.join(map(str, chosen))})") from None
+    fit = [u for u in split["dev"] if u not in split["conformal"]]
+    outside = [u for u in ctx.config["train"]["val_units"] or () if u not in fit]
+    if outside:
+        raise InputError(f"{source}: [train] val_units: unit(s) {', '.join(map(str, outside))}"
+                         f" are not training units of {data} (those: "
+                         f"{', '.join(map(str, fit))})")
     hats = [f"{c}_hat" for c in UNITS] + [f"{q}_hat_std" for q in THETA_NAMES]
     flights = [f"{h}{s}" for h in HEALTH_STEMS for s in ("", "_hat")] + ["HI_hat_rel"] + \
         [f"{q}{s}" for q in THETA_NAMES for s in ("_hat_rel", "_mode")]

@@ -1,0 +1,143 @@
+"""Requests the CLI must refuse in one line, before anything is written, found by trying to
+break it as a user would (2026-11-27): an effect given twice or one that changes nothing, an
+empty unit list, a data writer over a feature table, pipeline settings that used to fail
+only after the calibration had run, duplicated channels, an empty output name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cli.main import app
+from engine_model import datasets
+from engine_model.physics.effects import parse_effect_spec
+from engine_model.validation import InputError
+from tests.cli_checks import assert_user_error, cli_runner
+from tests.conftest import REPO
+
+TINY = REPO / "data_samples" / "tiny"
+
+
+@pytest.fixture(scope="module")
+def runner():
+    return cli_runner()
+
+
+def run(runner, *args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def leftovers(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_an_effect_given_twice_is_refused_before_the_fleet_is_written(runner, tmp_path):
+    r = run(runner, "simulate", "--preset", "tiny", "--units", "1", "--out", tmp_path / "f",
+            "--effect", "customer_bleed:f0=0.02", "--effect", "customer_bleed:f0=0.03")
+    assert_user_error(r, "customer_bleed", "more than once")
+    assert leftovers(tmp_path) == []
+
+
+def test_an_effect_sized_at_zero_changes_nothing_whatever_its_shape(runner, tmp_path):
+    assert parse_effect_spec("reynolds:n=0,flow_ratio=1").is_neutral()
+    assert not parse_effect_spec("reynolds:n=0.05,flow_ratio=0.5").is_neutral()
+    r = run(runner, "simulate", "--preset", "tiny", "--units", "1", "--out", tmp_path / "f",
+            "--effect", "reynolds:n=0,flow_ratio=1")
+    assert_user_error(r, "reynolds", "neutral")
+    with pytest.raises(InputError, match="cycle is supplied row by row"):
+        parse_effect_spec("sensor_drift:channel=T30,rate=1e-4,cycle=5")
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("args", [
+    ("simulate", "--preset", "tiny", "--units", ""),
+    ("calibrate", TINY, "--units", ""),
+], ids=["simulate", "calibrate"])
+def test_an_empty_unit_list_is_refused_not_read_as_all(runner, tmp_path, args):
+    r = run(runner, *args, "--out", tmp_path / "o")
+    assert_user_error(r, "--units", "empty list")
+    assert leftovers(tmp_path) == []
+
+
+def test_a_data_writer_does_not_replace_a_feature_table(runner, tmp_path):
+    """simulate and import write data; a feature table (calibrate's output, with its
+    calibration record) in their way is refused without --overwrite."""
+    df, meta = datasets.read_dataset(TINY, units=[1])
+    df = df[df["cycle"] <= 2]
+    feats = datasets.write_parquet(df, tmp_path / "feats", {**meta, "calibration": {"x": 1}})
+    r = run(runner, "simulate", "--preset", "tiny", "--units", "2", "--out", feats)
+    assert_user_error(r, "feats", "--overwrite")
+    assert "calibration" in datasets.read_metadata(feats)
+    # a feature table written whole replaces a feature table, and data replace data
+    datasets.write_parquet(df, feats, {**meta, "calibration": {"x": 2}})
+    raw = datasets.write_parquet(df, tmp_path / "raw", meta)
+    datasets.write_parquet(df, raw, meta)
+    with pytest.raises(InputError, match="--overwrite"):
+        datasets.write_parquet(df, raw, {**meta, "calibration": {"x": 3}})
+
+
+@pytest.mark.parametrize("table, fragment", [
+    ('[simulate]\npreset = "tiny"\nseed = -1\n', "[simulate] seed -1"),
+    ("[calibrate]\ndrift = 0.0\n", "[calibrate] drift must be > 0"),
+    ('[train]\ndevice = "tpu"\n', "[train] device must be auto, cpu or cuda"),
+    ("[train]\nval_fraction = 2.0\n", "[train] validation fraction"),
+    ('[discover]\ncandidates = ["nope"]\n', "[discover] candidates: unknown effect 'nope'"),
+    ("[train]\nval_units = [99]\n", "[train] val_units: unit(s) 99"),
+], ids=["seed", "drift", "device", "val-fraction", "candidates", "val-units"])
+def test_pipeline_settings_are_refused_before_any_stage(runner, tmp_path, table, fragment):
+    config = tmp_path / "p.toml"
+    config.write_text(table)
+    r = run(runner, "pipeline", "--config", config, "--out", tmp_path / "run")
+    assert_user_error(r, fragment, code=None)
+    assert not (tmp_path / "run").exists()
+
+
+def test_duplicated_channels_and_sensors_are_refused(runner, tmp_path):
+    from calibration.adaptation.data import fleet_data
+
+    df, _ = datasets.read_dataset(TINY, units=[1])
+    with pytest.raises(InputError, match="T30 listed twice"):
+        fleet_data(df.assign(condition=1), ("T30", "T30"))
+    r = run(runner, "calibrate", TINY, "--sensors", "T30,T30", "--out", tmp_path / "o")
+    assert_user_error(r, "sensors listed twice")
+    r = run(runner, "calibrate", TINY, "--method", "mhe", "--stride", "0", "--out",
+            tmp_path / "o")
+    assert_user_error(r, "stride 0")
+    r = run(runner, "discover", TINY, "--seed", "-1", "--out", tmp_path / "o")
+    assert_user_error(r, "seed -1")
+    assert leftovers(tmp_path) == []
+
+
+def test_calibrate_refuses_a_nan_rul_naming_unit_and_row(runner, tmp_path):
+    df, meta = datasets.read_dataset(TINY, units=[1, 2])
+    df = df[df["cycle"] <= 2].reset_index(drop=True)
+    df["RUL"] = df["RUL"].astype(float)
+    df.loc[df.index[df["unit"] == 2][3], "RUL"] = np.nan
+    data = datasets.write_parquet(df, tmp_path / "d", meta)
+    r = run(runner, "calibrate", data, "--out", tmp_path / "f")
+    assert_user_error(r, "unit 2, row 4: column RUL = nan")
+    assert not (tmp_path / "f").exists()
+
+
+def test_metadata_unit_lists_and_output_names_are_checked():
+    """A metadata ``test_units`` that is not a list (evaluate used to read "12" as units 1
+    and 2); an empty --out name for predict."""
+    from prognostics.outputs import per_cycle_path
+    from prognostics.splits import metadata_units
+
+    with pytest.raises(InputError, match="metadata test_units must be a list"):
+        metadata_units({"test_units": "12"}, "test_units")
+    assert metadata_units({}, "test_units") is None
+    assert metadata_units({"test_units": [11, 14]}, "test_units") == [11, 14]
+    with pytest.raises(InputError, match="a file name is needed"):
+        per_cycle_path("")
+
+
+def test_predict_recognises_its_own_table_with_a_health_state_column(tmp_path):
+    from prognostics.outputs import PREDICTIONS
+
+    table = tmp_path / "p.csv"
+    pd.DataFrame({"unit": [1], "cycle": [1], "t": [0.0], "RUL": [5], "hs": [1],
+                  "RUL_pred": [4.0]}).to_csv(table, index=False)
+    assert PREDICTIONS.ours(table)
