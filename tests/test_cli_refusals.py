@@ -141,3 +141,16 @@ def test_predict_recognises_its_own_table_with_a_health_state_column(tmp_path):
     pd.DataFrame({"unit": [1], "cycle": [1], "t": [0.0], "RUL": [5], "hs": [1],
                   "RUL_pred": [4.0]}).to_csv(table, index=False)
     assert PREDICTIONS.ours(table)
+
+
+def test_an_empty_scheduler_address_and_a_single_condition_adaptation_are_refused(runner,
+                                                                                   tmp_path):
+    from calibration.adaptation import adapt
+
+    r = run(runner, "simulate", "--preset", "tiny", "--units", "1", "--scheduler", "",
+            "--out", tmp_path / "f")
+    assert_user_error(r, "--scheduler: empty address")
+    assert leftovers(tmp_path) == []
+    df, _ = datasets.read_dataset(TINY, units=[1, 2])
+    with pytest.raises(InputError, match="one operating condition"):
+        adapt(df.assign(condition=1), ("T30", "T50"))

@@ -12,6 +12,7 @@ import pandas as pd
 from engine_model.channels import THETA_NAMES
 from engine_model.datasets import hyprog_version
 from engine_model.datasets.fingerprint import rows_fingerprint
+from engine_model.validation import InputError
 
 from ..measurement_noise import EARLY_CYCLES
 from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
@@ -119,6 +120,10 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     t0 = time.perf_counter()
     data, noise = fleet_data(df, channels, early_cycles, units, source=source,
                              model_error=model_error)
+    if len(np.unique(data.condition)) < 2:
+        raise InputError(f"{source}: one operating condition in the early-life rows; the "
+                         "adaptation leaves each condition out in turn and needs two or more "
+                         "(C-MAPSS FD002 and FD004 have six)")
     groups = build_groups(data.channels, candidates)
     model = model or CandidateModel(groups)
     sel = select(model, data, groups, log)

@@ -227,6 +227,13 @@ def _probe(address: str) -> None:
         return  # unresolved, unreachable or slow: the client says so after its timeout
 
 
+def check_scheduler(scheduler) -> None:
+    """What can be told of a scheduler address without connecting (before any output is
+    made): an empty one is an error."""
+    if isinstance(scheduler, str) and not scheduler.strip():
+        raise InputError("--scheduler: empty address; give tcp://HOST:PORT or 'local'")
+
+
 def connect(scheduler, jobs: int = 1) -> Cluster:
     """A :class:`Cluster` for ``scheduler`` (module docstring); an address that does not answer
     is an :class:`InputError` naming it."""
@@ -242,8 +249,7 @@ def connect(scheduler, jobs: int = 1) -> Cluster:
         cluster = LocalCluster(n_workers=max(1, int(jobs)), threads_per_worker=1,
                                processes=True, dashboard_address=None)
         return Cluster(Client(cluster), cluster)
-    if not scheduler.strip():
-        raise InputError("--scheduler: empty address; give tcp://HOST:PORT or 'local'")
+    check_scheduler(scheduler)
     _probe(scheduler)
     try:
         client = Client(scheduler, timeout=CONNECT_TIMEOUT)

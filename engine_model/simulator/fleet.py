@@ -63,7 +63,7 @@ from engine_model.channels import (
     XV_NAMES,
 )
 from engine_model.runtime.atomic import atomic_output, remove_path, swap_into_place
-from engine_model.runtime.cluster import executor
+from engine_model.runtime.cluster import check_scheduler, executor
 from engine_model.runtime.ownership import OWNED_FILE
 from engine_model.runtime.shared_model import process_model
 from engine_model.validation import InputError
@@ -359,6 +359,7 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     rate = check_rate(rate_hz if rate_hz is not None else p.rate_hz)
     rec = record or p.record
     meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
+    check_scheduler(scheduler)
     if out is not None:
         _check_out(Path(out), fmt, overwrite)  # before any work
     local_model = model if scheduler is None else None  # a model is used only here
