@@ -141,8 +141,8 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
     """An adapted model's record (:mod:`.artefact`) refitted to the early life of ``units`` of
     ``df`` with its own choices (channels, early cycles, model error, chosen candidates),
     started at its recorded values: the fit and the errors with each condition left out,
-    with their std (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on,
-    this gives a record written before ``std_pct_condition_out`` existed its uncertainty;
+    with their std (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on
+    it gives the std that a record written before ``std_pct_condition_out`` existed lacks;
     on other engines of the same engine type, how the adaptation holds there. ``model``: a
     prebuilt :class:`~calibration.discrepancy.candidates.CandidateModel` of the record's
     candidate groups (tests)."""

@@ -69,11 +69,21 @@ def written_by_hyprog(path: Path) -> bool:
 
 
 def is_feature_table(path: Path) -> bool:
-    """``path`` is a feature table hyprog wrote: a hyprog dataset whose metadata has the
-    ``calibration`` entry (``hyprog calibrate``'s output)."""
-    from .dispatch import read_metadata
+    """``path`` is a feature table hyprog wrote: a parquet dataset directory whose metadata
+    (in its part files) has the ``calibration`` entry (``hyprog calibrate``'s output)."""
+    import json
 
-    return written_by_hyprog(path) and "calibration" in read_metadata(path)
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    if not (path.is_dir() and written_by_hyprog(path)):
+        return False
+    part = next(p for p in sorted(path.glob(PART_GLOB)) if not p.name.startswith((".", "_")))
+    try:
+        meta = json.loads((pq.read_schema(part).metadata or {})[META_KEY.encode()])
+    except (pa.ArrowException, OSError, ValueError, KeyError):
+        return False
+    return isinstance(meta, dict) and "calibration" in meta
 
 
 def dataset_layout(path: Path) -> list[str]:
