@@ -154,3 +154,9 @@ def test_an_empty_scheduler_address_and_a_single_condition_adaptation_are_refuse
     df, _ = datasets.read_dataset(TINY, units=[1, 2])
     with pytest.raises(InputError, match="one operating condition"):
         adapt(df.assign(condition=1), ("T30", "T50"))
+
+
+def test_a_customer_bleed_that_would_add_air_is_refused():
+    with pytest.raises(InputError, match=r"bleed fraction .* -0.0175 < 0"):
+        parse_effect_spec("customer_bleed:f0=0.005,f_alt=-0.005")
+    parse_effect_spec("customer_bleed:f0=0,f_alt=0.0046")  # the FD002 adaptation's: fine

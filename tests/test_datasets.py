@@ -482,3 +482,38 @@ def test_parquet_unit_writer_streams_the_same_layout(tmp_path):
         write_unit(df[df.unit == df.unit.iloc[0]])
         raise RuntimeError("simulated crash")
     assert not c.exists() and not list(tmp_path.glob(".broken*"))
+
+
+def test_a_partition_with_other_columns_and_a_unit_outside_the_split_are_errors(tmp_path):
+    """A parquet directory whose units disagree on their columns (a column one unit lacks
+    vanished from every unit, or came back NaN) and a unit asked for outside the requested
+    split (it was dropped without a word; the h5 reader refuses it) are one-line errors."""
+    from engine_model.validation import InputError
+    from tests.conftest import REPO
+
+    df, meta = datasets.read_dataset(REPO / "data_samples" / "tiny", units=[1, 2])
+    df = df[df["cycle"] <= 2]
+    path = datasets.write_parquet(df, tmp_path / "d", {**meta, "dev_units": [1],
+                                                       "test_units": [2]})
+    with pytest.raises(InputError, match="not in the test split"):
+        datasets.read_dataset(path, split="test", units=[1])
+    back, _ = datasets.read_dataset(path, split="test", units=[2])
+    assert set(back["unit"]) == {2}
+    part = path / "unit=2" / "part-0.parquet"
+    table = pq.read_table(part)
+    pq.write_table(table.drop(["T48"]), part)
+    with pytest.raises(InputError, match="T48"):
+        datasets.read_dataset(path)
+
+
+def test_effect_parameters_and_health_of_the_wrong_shape_are_refused():
+    from engine_model import EngineModel
+    from engine_model.physics.effects import parse_effect_spec
+    from engine_model.validation import InputError
+
+    m = EngineModel(effects=[parse_effect_spec("customer_bleed")], compiled=False)
+    w = np.array([[0.0, 0.0, 100.0, 518.67]] * 2)
+    with pytest.raises(InputError, match=r"p: shape \(3,\), expected \(2,\)"):
+        m.solve(w, None, np.zeros(3))
+    with pytest.raises(InputError, match=r"theta: shape \(9,\)"):
+        m.solve(w, np.zeros(9))

@@ -208,6 +208,12 @@ def test_dynamics_on_a_flight_lags_spools_and_temperatures():
     assert (out["T48"][k] - 1900) / 100 == pytest.approx(1 - np.exp(-60 / 60), abs=0.01)
     assert (out["Nc"][102] - 9000) / 500 == pytest.approx(1 - np.exp(-2 / 2), abs=0.15)
     assert out["Nc"].iloc[-1] == pytest.approx(9500, abs=1e-6)
+    # every station pressure follows the spools: they lag together and keep their order
+    # (only P30 and P50 lagged before, and the burner exit rose above its inlet)
+    df = pd.DataFrame({"t": t, "P30": 300 + 200 * step, "P40": 288 + 192 * step,
+                       "Ps30": 280 + 186 * step, "P2": 14.0 + 0 * step})
+    out = e.apply_series(df)
+    assert (out["P40"] < out["P30"]).all() and (out["Ps30"] < out["P30"]).all()
 
 
 def test_a_flatter_fan_speed_line_holds_the_pressure_ratio_at_cruise(model):

@@ -171,6 +171,43 @@ def test_series_effect_lags_the_truth(model):
     assert meta["effects"][0]["name"] == "dynamics"
 
 
+def test_a_sensor_fault_does_not_change_the_engines_health_index():
+    """The margins are the engine's stations: a biased T48 reading moves neither the EGT
+    margin nor, through it, the wear the simulator solves for."""
+    clean = EngineModel(compiled=False)
+    biased = EngineModel(effects=[parse_effect_spec("sensor_bias:channel=T48,gain=0.02")],
+                         compiled=False)
+    theta = np.zeros((2, len(THETA_NAMES)))
+    theta[1, THETA_NAMES.index("HPT_eff_mod")] = -0.02
+    np.testing.assert_allclose(hix.HealthIndex(biased)(theta), hix.HealthIndex(clean)(theta),
+                               rtol=1e-12)
+
+
+def test_lagged_pressures_stay_consistent_and_a_dropped_sample_does_not_leak(model):
+    """Every station pressure lags with the spools, so they keep their order (P40 < P30,
+    Ps30 < P30) through a transient; a sample that did not converge is dropped before the lag
+    runs, so its outputs (NaN here) reach no kept sample."""
+    dyn = parse_effect_spec("dynamics:tau_spool=4,tau_thermal=120")
+    lagged, _, _ = fleet.simulate("tiny", units=[1], seed=7, rate_hz=1.0, model=model,
+                                  effects=[dyn], noise_scale=0.0)
+    assert (lagged.P40 < lagged.P30).all() and (lagged.Ps30 < lagged.P30).all()
+
+    class OneFailure:  # the model, with sample 30 reported unconverged and NaN
+        def __getattr__(self, name):
+            return getattr(model, name)
+
+        def solve_series(self, w, theta, p=None):
+            res = model.solve_series(w, theta, p)
+            res.converged[30] = False
+            res.x[30] = np.nan
+            return res
+
+    with pytest.warns(UserWarning, match="1 samples did not converge"):
+        df, _, _ = fleet.simulate("tiny", units=[1], seed=7, rate_hz=1.0, model=OneFailure(),
+                                  effects=[dyn], noise_scale=0.0)
+    assert len(df) == len(lagged) - 1 and np.isfinite(df[list(XS_NAMES)].to_numpy()).all()
+
+
 def test_h5_round_trip_of_a_simulated_fleet(tmp_path, tiny):
     df, meta, _ = tiny
     path = datasets.write_ncmapss_h5(df, tmp_path / "tiny.h5", meta)

@@ -58,7 +58,11 @@ def read_dataset(path: str | os.PathLike, units: Sequence[int] | None = None,
         if listed is None:
             raise InputError(f"{p}: the metadata has no {key}; cannot select split {split!r}")
         listed = [int(u) for u in listed]
-        units = listed if units is None else [u for u in units if int(u) in set(listed)]
+        outside = [int(u) for u in units or () if int(u) not in set(listed)]
+        if outside:  # as the h5 reader: a unit asked for outside the split is an error
+            raise InputError(f"{p}: unit(s) {', '.join(map(str, outside))} not in the "
+                             f"{split} split ({key}: {', '.join(map(str, listed))})")
+        units = listed if units is None else [int(u) for u in units]
     return read_parquet(p, units=units, columns=columns, source_rows=source_rows)
 
 

@@ -191,7 +191,7 @@ def _split_units(groups: Mapping[str, tuple[h5py.Dataset, list[str]]], split: st
     bad = ~np.isfinite(units)
     if bad.any():
         raise InputError(f"{path}: A_{split}, column unit is NaN at row "
-                         f"{int(np.flatnonzero(bad)[0])}")
+                         f"{int(np.flatnonzero(bad)[0]) + 1}")
     return units
 
 

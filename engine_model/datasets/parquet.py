@@ -215,11 +215,24 @@ def _arrow_error(path: Path, exc: Exception) -> InputError:
     return InputError(f"{path}: not a readable parquet dataset ({first})")
 
 
+def _check_same_columns(files: list[Path]) -> None:
+    """Every part file of a directory has the first one's columns (a dataset read across
+    them would otherwise take the first file's: a column one unit lacks would vanish from
+    every unit, or come back as NaN for that unit, without a word)."""
+    first = set(pq.read_schema(files[0]).names)
+    for f in files[1:]:
+        names = set(pq.read_schema(f).names)
+        if names != first:
+            diff = sorted(first ^ names)
+            raise InputError(f"{f}: its columns differ from {files[0].parent.name}'s (column(s) "
+                             f"{', '.join(diff)} in one of them only)")
+
+
 def _open_parquet(path: Path) -> tuple[pds.Dataset, int | None]:
     """A pyarrow dataset over ``path`` and, for a lone part file, the unit of its directory."""
     try:
         if path.is_dir():
-            _parquet_files(path)
+            _check_same_columns(_parquet_files(path))
             partitioning = None
             if _is_hive_by_unit(path):
                 partitioning = pds.partitioning(pa.schema([("unit", pa.int64())]), flavor="hive")

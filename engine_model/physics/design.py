@@ -1,7 +1,7 @@
 """Design point of the 90,000 lbf class two-spool high-bypass turbofan.
 
 The design point is sea-level static, ISA, TRA 100, theta = 0. Its measured quantities are the
-C-MAPSS early-life means of ``shared/reference/cmapss-fd002-operating-points.csv`` (row alt 0,
+C-MAPSS early-life means of ``data_samples/cmapss-fd002-operating-points.csv`` (row alt 0,
 Mach 0, TRA 100): T24, T30, T50, P2, P15, P30, epr = P50/P2, BPR, W31, W32, Nf, Nc. Quantities
 that C-MAPSS does not publish are typical values of the engine class (Walsh & Fletcher ch. 5
 and 6; Saravanamuttoo et al. ch. 3), each a named field of :class:`DesignSpec`.

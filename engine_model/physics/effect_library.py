@@ -123,6 +123,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine_model.channels import OUTPUT_NAMES
+from engine_model.validation import ENVELOPE
 
 from .effect_base import Effect, EffectSpecError, Param, register
 
@@ -143,6 +144,18 @@ class CustomerBleed(Effect):
     moves = ("Wf", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40", "P50")
     signature = {"SLS": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1},
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
+
+    def __init__(self, **values):
+        """A specification whose fraction is negative somewhere between sea level and the
+        envelope's ceiling is refused (the model itself stays smooth in ``f0``, ``f_alt``:
+        a fit bounds ``f0`` at 0, and its result is checked here when loaded)."""
+        super().__init__(**values)
+        top = ENVELOPE.alt_ft[1] / 1.0e4
+        worst = min(self.values["f0"], self.values["f0"] + self.values["f_alt"] * top)
+        if worst < 0.0:  # a negative bleed would add air to the engine
+            raise EffectSpecError(
+                f"effect {self.name}: the bleed fraction f0 + f_alt alt/10,000 ft is "
+                f"{worst:.4g} < 0 between sea level and {ENVELOPE.alt_ft[1]:g} ft")
 
     def apply(self, hook, value, p, ctx):
         if hook != "W_customer_bleed":
@@ -512,8 +525,14 @@ class Dynamics(Effect):
         Param("tau_thermal", "s", 0.0, "heat-soak time constant of the temperatures", 60.0,
               (10.0, 300.0), valid=(0.0, 3600.0)),
     )
-    moves = ("Nf", "Nc", "Wf", "T24", "T30", "T40", "T48", "T50", "P30", "P50")
+    moves = ("Wf", "Nf", "Nc", "T24", "T30", "T40", "T48", "T50", "P15", "P21", "P24", "Ps30",
+             "P30", "P40", "P50")
     signature = {"SLS": {}, "CRZ": {}}  # a steady point is its own steady state
+    #: Outputs that do not follow the engine: the intake pressure (the flight condition)
+    #: and the controller's demand (the throttle); every other output but the temperatures
+    #: follows the spools (speeds, every station pressure, every flow, and what is computed
+    #: from them), so that they lag together and stay consistent (P40 < P30 at every sample).
+    NOT_LAGGED = ("P2", "PCNfR_dmd")
 
     @staticmethod
     def lag(y: np.ndarray, t: np.ndarray, tau: float) -> np.ndarray:
@@ -555,8 +574,9 @@ class Dynamics(Effect):
         t = df["t"].to_numpy(float)
         if np.any(np.diff(t) <= 0):
             raise ValueError("dynamics: the time column t must increase within a flight")
-        spool = [c for c in self.moves if c in df.columns and c not in _THERMAL]
         thermal = [c for c in _THERMAL if c in df.columns]
+        spool = [c for c in OUTPUT_NAMES
+                 if c in df.columns and c not in thermal and c not in self.NOT_LAGGED]
         if spool:
             out[spool] = self.lag(df[spool].to_numpy(float), t, v["tau_spool"])
         if thermal:

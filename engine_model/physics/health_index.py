@@ -10,7 +10,8 @@ with the EGT margin ``m_EGT = T48_lim - T48``, all evaluated at the **reference 
 at which an engine's EGT margin is quoted). A new engine (theta = 0) has HI = 1. Limits
 (:data:`LIMITS`): T48 limit = new-engine T48 at the reference + 90 degR (50 K of EGT margin, the
 order of a new CFM56/V2500-class engine's take-off EGT margin); stall margins may fall to 10 %
-(fan), 8 % (LPC) and 15 % (HPC) from the new engine's 18 %, 14 % and 25.6 % at the reference.
+(fan), 8 % (LPC) and 15 % (HPC) from the new engine's (12.0 %, 14 % and 25.6 % at the
+reference with the present maps: :attr:`HealthIndex.new`).
 """
 
 from __future__ import annotations
@@ -30,11 +31,29 @@ EGT_MARGIN_DEGR = 90.0
 LIMITS = {"SmFan": 10.0, "SmLPC": 8.0, "SmHPC": 15.0}
 
 
+def physical_p(model) -> np.ndarray | None:
+    """The model's effect parameters with every sensor effect's at its neutral value: the
+    engine's own stations, as its margins are defined, not what a faulty sensor reports
+    (a biased T48 reading must not change the EGT margin, nor the wear the simulator solves
+    for from it). None for a model without effects."""
+    from .effect_library import SensorEffect
+
+    if not len(model.param_names):
+        return None
+    p = np.array(model.p_default, float)
+    for e in model.effects.effects:
+        if isinstance(e, SensorEffect):
+            for q in e.params:
+                p[model.param_names.index(f"{e.name}.{q.name}")] = q.default
+    return p
+
+
 def reference_margins(model, theta: np.ndarray) -> dict[str, np.ndarray]:
-    """Stall margins [%] and T48 [degR] at the reference condition for each row of theta."""
+    """Stall margins [%] and T48 [degR] at the reference condition for each row of theta
+    (the engine's stations: :func:`physical_p`)."""
     theta = np.atleast_2d(theta)
     w = np.tile(np.asarray(REFERENCE_W, float), (len(theta), 1))
-    df = model.evaluate(w, theta=theta)
+    df = model.evaluate(w, theta=theta, p=physical_p(model))
     if not df["converged"].all():
         i = int(np.flatnonzero(~df["converged"].to_numpy())[0])
         raise InputError(f"health index: the reference point did not converge at theta row {i}")

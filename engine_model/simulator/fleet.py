@@ -235,15 +235,19 @@ def simulate_unit(model, spec: UnitSpec, seed: int = 0, rate_hz: float = 0.1,
     out = pd.DataFrame(y, columns=list(OUTPUT_NAMES))
     keep = res.converged
     if series_effects:  # e.g. dynamics: flight by flight, on the time series of outputs
+        # of the converged samples only (a dropped sample's outputs must not reach the
+        # samples after it through a lag; the lag integrates over the gap it leaves)
         out["t"] = t
         starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-        parts = []
         for s0, n in zip(starts, sizes, strict=True):
-            part = out.iloc[s0:s0 + n]
+            rows = s0 + np.flatnonzero(keep[s0:s0 + n])
+            if not len(rows):
+                continue
+            part = out.iloc[rows]
             for eff in series_effects:
                 part = eff.apply_series(part)
-            parts.append(part)
-        out = pd.concat(parts, ignore_index=True).drop(columns="t")
+            out.loc[part.index, part.columns] = part
+        out = out.drop(columns="t")
     df = pd.DataFrame({
         "unit": np.full(len(w), spec.unit, np.int64), "cycle": cycle.astype(np.int64),
         "t": t, "Fc": np.full(len(w), spec.Fc, np.int64),

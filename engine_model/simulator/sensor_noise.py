@@ -16,7 +16,7 @@ classes (thermocouples in the hot section about 0.25 % of reading, pressure tran
 ========  ===========  ======================================
 channel   sigma_rel    at sea-level static TRA 100
 ========  ===========  ======================================
-Wf        0.004        about 0.016 lbm/s
+Wf        0.004        about 0.028 lbm/s
 Nf        5e-5         about 0.12 rpm
 Nc        5e-4         about 4.5 rpm
 T24       2e-4         about 0.13 degR

@@ -70,7 +70,7 @@ MAX_CONTINUATION_POINTS = 200  # per call; more failures than this are reported 
 class ResidualSystem:
     """The steady state as equations, for optimisers that solve many points at once.
 
-    ``residual(x, w, theta, p)`` (7 scaled residuals) and ``outputs(x, w, theta, p)`` (every
+    ``residual(x, w, theta, p)`` (8 scaled residuals) and ``outputs(x, w, theta, p)`` (every
     channel of :data:`channels.OUTPUT_NAMES`, N-CMAPSS units) are CasADi Functions of the
     unknowns ``x`` (names in ``unknown_names``), so that e.g. a moving-horizon estimator can
     make ``x`` at every sample decision variables with ``residual == 0`` as constraints.
@@ -82,7 +82,7 @@ class ResidualSystem:
     x_design: np.ndarray
     residual: ca.Function
     outputs: ca.Function
-    guess: object  # callable (w (N,4)) -> x0 (N,7)
+    guess: object  # callable (w (N,4)) -> x0 (N,8)
 
 
 class _LazyFunctions(dict):
@@ -280,6 +280,9 @@ class EngineModel:
         if p is None:
             return np.tile(np.asarray(self.p_default, float), (n, 1)).reshape(n, k)
         p = np.asarray(p, float)
+        if p.shape not in ((k,), (n, k)):  # a wrong stride would read past the array in C
+            raise InputError(f"effect parameters p: shape {p.shape}, expected ({k},) or "
+                             f"({n}, {k}) for this model's {k} parameter(s)")
         return np.tile(p, (n, 1)) if p.ndim == 1 else p
 
     @staticmethod
@@ -288,10 +291,13 @@ class EngineModel:
         if theta is None:
             return np.zeros((n, N_THETA))
         theta = np.asarray(theta, float)
+        if theta.shape not in ((N_THETA,), (n, N_THETA)):
+            raise InputError(f"health parameters theta: shape {theta.shape}, expected "
+                             f"({N_THETA},) or ({n}, {N_THETA})")
         return np.tile(theta, (n, 1)) if theta.ndim == 1 else theta
 
     def initial_guess(self, w: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
-        """Starting unknowns (N, 7) for operating points ``w`` (N, 4) and health ``theta``
+        """Starting unknowns (N, 8) for operating points ``w`` (N, 4) and health ``theta``
         (N, 10): the tabulated guess with its first-order theta correction."""
         return self._guess(w, theta)
 
@@ -329,7 +335,7 @@ class EngineModel:
     def solve_from(self, w, theta, x0, p=None, tol: float = 1e-10, max_iter: int = 30,
                    lu: JacobianStore | None = None, retry: bool = True,
                    backend: str = "auto") -> SolveResult:
-        """Newton from the given unknowns ``x0`` (N, 7) at ``w`` (N, 4), ``theta`` (N, 10)
+        """Newton from the given unknowns ``x0`` (N, 8) at ``w`` (N, 4), ``theta`` (N, 10)
         and ``p``; ``lu`` carries each point's Jacobian factors between calls (compiled driver
         only, read and updated in place). Roots off the maps are not converged. With
         ``retry``, failed points are solved again from the tabulated guess and then by
@@ -365,7 +371,7 @@ class EngineModel:
               check=True) -> SolveResult:
         """Solve the steady state at every row of ``w`` (N, 4): returns :class:`SolveResult`.
 
-        ``theta`` is (10,) or (N, 10); ``x0`` (N, 7) overrides the tabulated starting guess.
+        ``theta`` is (10,) or (N, 10); ``x0`` (N, 8) overrides the tabulated starting guess.
         Points that fail are retried by continuation from the design point before being
         flagged (a retry from the tabulated guess would repeat the first attempt).
         """
@@ -562,7 +568,12 @@ class EngineModel:
     def casadi_function(self) -> ca.Function:
         """``F(w, theta, p) -> y``: the steady state as one CasADi Function (implicit solve by
         a Newton rootfinder, exact derivatives), for use inside an optimisation. Starting
-        point of the rootfinder: the design unknowns."""
+        point of the rootfinder: the design unknowns, so it converges near the design point
+        (take-off and climb power) only. Far from it (ground idle, part power at altitude)
+        the plain Newton iteration does not converge and the Function returns its last
+        iterate, wrong or NaN, without an error (CasADi's rootfinder reports no failure
+        through a Function's outputs): check the residual of ``residual_system`` there, or
+        use :meth:`solve`, which has the tabulated starting guess and the continuation."""
         x, w, th, p = (self._sym[k] for k in ("x", "w", "theta", "p"))
         g = ca.Function("g", [x, ca.vertcat(w, th, p)], [self._sym["res"]])
         rf = ca.rootfinder("hyprog_steady", "newton", g, {"abstol": 1e-11, "max_iter": 50,
