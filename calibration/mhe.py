@@ -125,11 +125,13 @@ _KERNELS: dict = {}
 
 def kernels_for(model, compiled=True) -> StageKernels:
     """The per-sample kernels of ``model`` (built, or loaded from the disk cache, once per
-    process)."""
+    process). The cache holds the model with its kernels: an ``id`` is unique only among
+    live objects, and a model freed and another built at its address would otherwise be
+    served the first one's kernels."""
     key = (id(model), compiled)
     if key not in _KERNELS:
-        _KERNELS[key] = StageKernels(model, compiled=compiled)
-    return _KERNELS[key]
+        _KERNELS[key] = (model, StageKernels(model, compiled=compiled))
+    return _KERNELS[key][1]
 
 
 class _NLPCache:

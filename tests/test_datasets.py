@@ -362,7 +362,8 @@ def test_h5_structural_errors_name_the_file_and_the_dataset(tmp_path, fleet):
     with h5py.File(nan_unit, "a") as f:
         j = [v.decode() for v in f["A_var"][()]].index("unit")
         f["A_test"][3, j] = np.nan
-    with pytest.raises(InputError, match=r"nan_unit.h5: A_test, column unit is NaN at row 3"):
+    # index 3 is the fourth row: rows are counted from 1, as in every other message
+    with pytest.raises(InputError, match=r"nan_unit.h5: A_test, column unit is NaN at row 4"):
         read_ncmapss_h5(nan_unit)
 
     no_var = tmp_path / "no_var.h5"
