@@ -44,8 +44,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-# the repository first: this folder's calibration.py must not shadow the calibration package
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages
 
 #: The five health parameters FD001's eight sensors observe together (a sixth, LPT flow, is
 #: reported unobservable by ``hyprog calibrate``).

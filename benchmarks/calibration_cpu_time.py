@@ -1,7 +1,7 @@
 """UKF samples per CPU-second in one process: a figure that holds on a shared machine.
 
-``benchmarks/calibration.py`` reports wall-clock samples/s over a whole fleet on two workers,
-which other processes on the same cores lower. This script runs
+``benchmarks/calibration_methods.py`` reports wall-clock samples/s over a whole fleet on two
+workers, which other processes on the same cores lower. This script runs
 ``get_estimator(METHOD).estimate`` on every unit of a dataset (default
 ``data_samples/tiny``) in this process and times it with ``time.process_time``, so two
 versions of the code can be compared while other work runs::
@@ -15,18 +15,12 @@ fleet benchmark's per-worker rate; it is for comparisons, not for the README's s
 """
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
-# benchmarks/calibration.py would shadow the calibration package: drop this folder from the
-# path (not the repository root, so that PYTHONPATH picks the tree to measure).
-if Path(sys.path[0]).resolve() == Path(__file__).resolve().parent:
-    sys.path.pop(0)
-
-import calibration  # noqa: E402
-from calibration import CalibrationSetup, get_estimator  # noqa: E402
-from engine_model.datasets import read_dataset  # noqa: E402
+import calibration
+from calibration import CalibrationSetup, get_estimator
+from engine_model.datasets import read_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))  # the package, before this folder's calibration.py
+sys.path.insert(0, str(ROOT))  # this checkout, not whichever tree is installed
 
 #: (``--noise``, ``--model-error``) settings compared.
 SETTINGS = (("model", 0.0), ("data", 0.0), ("model", 0.003), ("data", 0.001), ("data", 0.003),

@@ -37,9 +37,6 @@ import sys
 import time
 from pathlib import Path
 
-# this folder holds benchmarks/calibration.py, which would shadow the calibration package
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).parent]
-
 
 def preset(n: int, base: str = "ds02"):
     """N units cycling through the ``base`` preset's specifications (``tiny``: a quick check

@@ -26,7 +26,11 @@ def load_script(path: Path, name: str):
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
-    spec.loader.exec_module(module)
+    saved = list(sys.path)  # a script may put its folder first on the path: not for the
+    try:                    # rest of the test process (nor the workers it spawns)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path[:] = saved
     return module
 
 

@@ -1,9 +1,9 @@
 """Accuracy and speed of every calibration method on a simulated fleet, against the truth and
 the Cramér-Rao bound (:mod:`calibration.compare`).
 
-    python benchmarks/calibration.py                             # ds02 at 0.1 Hz, 2 jobs
-    python benchmarks/calibration.py --methods ukf,mhe --units 2,14 --jobs 2
-    python benchmarks/calibration.py --data fleet/ --params all  # a fleet already simulated
+    python benchmarks/calibration_methods.py                             # ds02 at 0.1 Hz, 2 jobs
+    python benchmarks/calibration_methods.py --methods ukf,mhe --units 2,14 --jobs 2
+    python benchmarks/calibration_methods.py --data fleet/ --params all  # a fleet already simulated
 
 The fleet is simulated with :func:`engine_model.simulator.fleet.simulate` (seed 0) unless
 ``--data`` is given; its true theta columns are the reference and are never read by the estimators.
