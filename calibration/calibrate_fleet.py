@@ -491,16 +491,13 @@ def checked_frame(df: pd.DataFrame, source: str = "data") -> pd.DataFrame:
     """A table given as a DataFrame checked and sorted as a file's rows are when read
     (:func:`engine_model.datasets.schema.normalise_table`: integer units and cycles, numeric
     channels, rows by unit, cycle, t), so that the estimates do not depend on the order of
-    its rows. A table without ``cycle`` (one series per unit, ordered by ``t``) is checked
-    with a placeholder cycle, dropped again."""
+    its rows. A table without ``cycle`` is one series per unit, ordered by ``t``."""
     from engine_model.datasets.schema import normalise_table
 
     if "unit" not in df.columns:
         raise InputError(f"{source}: a 'unit' column is needed to calibrate a fleet")
-    if "cycle" in df.columns:
-        return normalise_table(df, source, keep_source_rows=False)
-    return normalise_table(df.assign(cycle=0), source, keep_source_rows=False) \
-        .drop(columns="cycle")
+    return normalise_table(df, source, keep_source_rows=False,
+                           required=("unit", "cycle") if "cycle" in df.columns else ("unit",))
 
 
 def check_labels(frame: pd.DataFrame, unit: int, source) -> None:

@@ -17,8 +17,9 @@ import os
 from pathlib import Path
 
 from engine_model.runtime.ownership import OutputKind, check_output
+from engine_model.validation import InputError
 
-from .metadata import META_KEY
+from .metadata import META_KEY, parse_metadata
 from .paths import HDF5_MAGIC, PARQUET_MAGIC, PARQUET_PART
 
 PART_GLOB = "unit=*/*.parquet"
@@ -71,8 +72,6 @@ def written_by_hyprog(path: Path) -> bool:
 def is_feature_table(path: Path) -> bool:
     """``path`` is a feature table hyprog wrote: a parquet dataset directory whose metadata
     (in its part files) has the ``calibration`` entry (``hyprog calibrate``'s output)."""
-    import json
-
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -80,10 +79,10 @@ def is_feature_table(path: Path) -> bool:
         return False
     part = next(p for p in sorted(path.glob(PART_GLOB)) if not p.name.startswith((".", "_")))
     try:
-        meta = json.loads((pq.read_schema(part).metadata or {})[META_KEY.encode()])
-    except (pa.ArrowException, OSError, ValueError, KeyError):
+        raw = (pq.read_schema(part).metadata or {}).get(META_KEY.encode())
+        return "calibration" in parse_metadata(raw, str(part))
+    except (pa.ArrowException, OSError, InputError):
         return False
-    return isinstance(meta, dict) and "calibration" in meta
 
 
 def dataset_layout(path: Path) -> list[str]:

@@ -112,7 +112,7 @@ def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
     """``unit``/``cycle`` to int64 (NaN or fractions are errors); Fc/hs/RUL to int64 if exact;
     ``t`` to float64."""
     out = {}
-    for name in INT_KEYS:
+    for name in (k for k in INT_KEYS if k in df.columns):
         col = df[name]
         if col.dtype == np.int64:
             continue
@@ -161,13 +161,15 @@ def is_sorted(df: pd.DataFrame, keys: Sequence[str]) -> bool:
 
 
 def normalise_table(df: pd.DataFrame, source: str, unit_first: bool = True,
-                    keep_source_rows: bool = True) -> pd.DataFrame:
+                    keep_source_rows: bool = True, required=INT_KEYS) -> pd.DataFrame:
     """Check and coerce the bookkeeping and channel columns, sort by unit, cycle, t, reset the
-    index; :data:`SOURCE_ROW` is dropped after the checks unless ``keep_source_rows``."""
+    index; :data:`SOURCE_ROW` is dropped after the checks unless ``keep_source_rows``.
+    ``required``: the integer keys the table must have (a series without cycles: ``unit``
+    alone)."""
     if not isinstance(df, pd.DataFrame):
         raise InputError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
     check_unique(list(df.columns), source)
-    check_columns(list(df.columns), INT_KEYS, what=source)
+    check_columns(list(df.columns), required, what=source)
     df = as_int_keys(as_numeric(df, source), source)
     keys = sort_keys(df)
     if not is_sorted(df, keys):
