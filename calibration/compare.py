@@ -15,7 +15,9 @@ estimated parameter, over all samples of all units:
 ``crb``              the Cramér-Rao bound under the estimator's own assumptions, with exact
                      sensitivities at the **true** theta (:mod:`calibration.crb`), as the RMS
                      over samples of the bound's standard deviation: the recursive posterior
-                     bound for the random-walk filters (and the random-walk MHE), the inverse
+                     bound for the random-walk filters (with the setup's drift model,
+                     ``drift_per``) and the random-walk MHE (``posterior_time``: its walk is
+                     in operating time, whatever ``drift_per``), the inverse
                      Fisher information of each window with the arrival information carried
                      from window to window for the constant-theta MHE, and the inverse of each
                      cycle's Fisher information plus the prior for ``map_cycle``
@@ -53,7 +55,8 @@ def _bound_kind(method: str, options: dict) -> str:
         return "posterior"
     if method == "map_cycle":
         return "cycle"
-    return "posterior" if options.get("mode", "constant") == "random_walk" else "window"
+    # the random-walk MHE walks in operating time whatever ``drift_per`` (mhe docstring)
+    return "posterior_time" if options.get("mode", "constant") == "random_walk" else "window"
 
 
 def _window_labels(n: int, diag: dict) -> np.ndarray:
@@ -75,6 +78,8 @@ def unit_bound(model, df: pd.DataFrame, setup: CalibrationSetup, kind: str, diag
     prior = np.diag(setup.prior_std_vec() ** 2)
     if kind == "posterior":
         cov = posterior_crb(S, series.q_diag(setup), prior)
+    elif kind == "posterior_time":
+        cov = posterior_crb(S, setup.drift ** 2 * series.dt_h, prior)
     elif kind == "cycle":
         cov = windowed_crb(S, series.cycle, prior, arrival=False)
     else:

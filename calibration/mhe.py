@@ -38,6 +38,11 @@ residual system, :func:`mhe_nlp.reduced_sensitivity`)::
     P'   = I^-1 + q^2 dtau                                 inflated by the drift over the gap
     C'   = chol(P'^-1)
 
+A window whose NLP did not converge (IPOPT's status neither solved nor acceptable) is no
+evidence: its samples keep its solution and count in ``diagnostics["n_nonconverged"]``, but
+they are not folded in; the arrival cost passes over the window with the drift inflation
+alone (``P' = P + q^2 dtau``), and the next window is warm-started from the last converged one.
+
 In random-walk mode the same update runs sample by sample (a linearised information filter
 through the leaving samples, inflating by ``q^2 dtau`` between them). With non-overlapping
 windows that hold no drift step this is the exact filtering arrival cost of a linear-Gaussian
@@ -251,6 +256,12 @@ class ArrivalCost:
     def information(self) -> np.ndarray:
         return self.C.T @ self.C
 
+    def inflated(self, drift_var: float) -> ArrivalCost:
+        """The same arrival cost a drift variance later, with no data in between (the
+        prediction step alone: what a window that failed to converge passes on)."""
+        cov = np.linalg.inv(self.information) + np.eye(len(self.mu)) * drift_var
+        return ArrivalCost(self.mu.copy(), _chol_info(cov))
+
     def fold_constant(self, theta: np.ndarray, S: np.ndarray, e: np.ndarray, drift_var: float
                       ) -> ArrivalCost:
         """Fold leaving samples (sensitivities ``S`` (n, 16, nt), residuals ``e`` (n, 16)) of a
@@ -400,6 +411,12 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
         # arrival cost of the next window: fold in the samples that leave this one
         n_leave = seg.assign_end - a
         i_next = min(seg.assign_end, n - 1)
+        if not sol.success:  # its solution is no evidence: carry the arrival cost over it
+            span = ser.drift_h if mode == "constant" else ser.tau_h
+            arrival = arrival.inflated(q2 * max(float(span[i_next] - span[a]), 0.0))
+            if not o.arrival_cost:
+                arrival = prior
+            continue
         if mode == "constant":  # the setup's drift from this window's start to the next's
             arrival = arrival.fold_constant(
                 thk[0], S[:n_leave], e[:n_leave],

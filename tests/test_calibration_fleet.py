@@ -21,7 +21,7 @@ from calibration.calibrate_fleet import (
     unit_rows,
 )
 from calibration.compare import compare, format_report
-from calibration.crb import unit_posterior_crb, unit_sensitivities, windowed_crb
+from calibration.crb import posterior_crb, unit_posterior_crb, unit_sensitivities, windowed_crb
 from calibration.result import HAT_NAMES
 from calibration.series import prepare_unit
 from cli.main import app
@@ -193,6 +193,27 @@ def test_compare_reports_errors_and_bounds(small):
     text = format_report(rep)
     assert "### ukf" in text and "RMSE / CRB" in text
     json.dumps(rep, allow_nan=True)
+
+
+def test_the_random_walk_mhe_is_bounded_under_its_own_walk(small):
+    """The random-walk MHE walks in operating time whatever ``drift_per`` (calibration.mhe):
+    compare's bound for it is the posterior CRB with steps ``q^2 dt``, not the filters' drift
+    per cycle (which differs on data with cycles)."""
+    from calibration.base import default_model
+    from calibration.compare import _bound_kind, unit_bound
+
+    _, df = small
+    one = df[df["unit"] == 1].reset_index(drop=True)
+    assert _bound_kind("mhe", {"mode": "random_walk"}) == "posterior_time"
+    assert _bound_kind("ukf", {}) == "posterior"
+    series = prepare_unit(one, SETUP)
+    assert not np.allclose(series.dtau_h, series.dt_h)  # per cycle here
+    S = unit_sensitivities(default_model(), series, SETUP, one[list(PAPER_THETA)].to_numpy())
+    var, _ = unit_bound(default_model(), one, SETUP, "posterior_time", {}, S)
+    ref = posterior_crb(S, SETUP.drift ** 2 * series.dt_h, np.diag(SETUP.prior_std_vec() ** 2))
+    np.testing.assert_allclose(var, np.diagonal(ref, axis1=1, axis2=2), rtol=1e-12)
+    per_cycle, _ = unit_bound(default_model(), one, SETUP, "posterior", {}, S)
+    assert not np.allclose(var, per_cycle)
 
 
 def test_compare_needs_the_truth(small):

@@ -137,6 +137,21 @@ def test_a_second_writer_is_refused_and_a_stale_lock_is_taken_over(runner, tmp_p
     assert not lock_path(out).exists()
 
 
+def test_an_output_where_nothing_can_be_written_is_one_line(runner, tmp_path, monkeypatch):
+    """A directory the lock cannot be created in (read-only, permission, a pseudo file
+    system such as /proc) names the output and the directory, not the lock file's path."""
+    from engine_model.runtime import lock
+
+    def refuse(path):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(lock, "_try_create", refuse)
+    out = tmp_path / "fleet"
+    assert_error(run(runner, "simulate", "--units", "1", "--out", out), f"{out}: cannot write"
+                 f" an output there ({tmp_path}: Permission denied)")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_two_real_runs_into_one_output(runner, tmp_path, small):
     """A running ``hyprog calibrate`` holds --out: a second run is refused while it runs;
     SIGTERM ends the first cleanly (exit 143, lock released, only complete units)."""

@@ -295,3 +295,27 @@ def test_a_failed_window_counts_its_samples_as_not_converged():
     _record_window(diag, Segment(50, 110, 100), bad, info)
     _record_window(diag, Segment(100, 130, 130), bad, info)
     assert diag["non_converged_windows"] == 2 and diag["n_nonconverged"] == 50 + 30
+
+
+def test_a_failed_window_passes_the_arrival_cost_on_unchanged(model, monkeypatch):
+    """A window that did not converge is no evidence: nothing of it is folded into the next
+    arrival cost. With every window failing and no drift, each window therefore starts from
+    the prior, exactly as with the arrival cost switched off."""
+    from dataclasses import replace
+
+    from calibration import mhe_nlp
+
+    df = _unit(model, END, n_flights=3)[0]
+    setup = CalibrationSetup(drift=0.0)
+    reset = get_estimator("mhe", model, window=30, arrival_cost=False).estimate(df, setup)
+    solve = mhe_nlp.WindowNLP.solve
+    monkeypatch.setattr(mhe_nlp.WindowNLP, "solve",
+                        lambda self, *a, **k: replace(solve(self, *a, **k), success=False))
+    failed = get_estimator("mhe", model, window=30).estimate(df, setup)
+    d = failed.diagnostics
+    assert d["non_converged_windows"] == d["windows"] > 1
+    assert d["n_nonconverged"] == len(df)
+    np.testing.assert_allclose(failed.theta_hat.to_numpy(), reset.theta_hat.to_numpy(),
+                               rtol=0, atol=1e-7)
+    np.testing.assert_allclose(failed.theta_std.to_numpy(), reset.theta_std.to_numpy(),
+                               rtol=1e-9)

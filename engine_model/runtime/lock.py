@@ -52,9 +52,14 @@ def _try_create(lock: Path) -> bool:
 def acquire(path: str | os.PathLike) -> Path:
     """Take the lock of output ``path`` (module docstring); returns the lock file."""
     lock = lock_path(path)
-    lock.parent.mkdir(parents=True, exist_ok=True)
     for _ in range(3):
-        if _try_create(lock):
+        try:
+            lock.parent.mkdir(parents=True, exist_ok=True)
+            created = _try_create(lock)
+        except OSError as e:  # read-only, permission, a pseudo file system (/proc)
+            raise InputError(f"{path}: cannot write an output there ({lock.parent}:"
+                             f" {e.strerror or e})") from None
+        if created:
             return lock
         who = read_lock(lock)
         if who is None:  # being written this instant, or garbage: look once more
