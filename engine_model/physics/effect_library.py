@@ -481,6 +481,13 @@ class SensorEffect(Effect):
 
 @register
 class SensorBias(SensorEffect):
+    """Offset and gain of one sensor. The gain's valid range is relative (|gain| <= 0.5); the
+    offset is in the channel's own unit, whose scale differs by a factor 10^4 between
+    channels (psia to rpm), so it has no valid range of its own. At one reading the two
+    trade (``x g + b`` the same for every pair on a line): only readings far apart tell
+    them apart, so a fitted offset is judged with its gain and against the channel's readings
+    in the data (a gain of -24 % with an offset of a quarter of the reading is a knob)."""
+
     name = "sensor_bias"
     description = "Offset and gain error of one sensor: x <- x (1 + gain) + offset."
     params = (
