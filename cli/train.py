@@ -50,11 +50,11 @@ def train(
     ensemble: Annotated[int, typer.Option(
         "--ensemble", help="Networks to train, seeds seed..seed+N-1 (mean and spread).")] = 1,
     epochs: Annotated[int | None, typer.Option(
-        "--epochs", help="Maximum epochs (default: 60 FNN, 30 CNN, 250 DCNN, raised to at "
-        "least 5,000 optimiser steps).")] = None,
+        "--epochs", help="Maximum epochs (default: 60 FNN, 30 CNN, 250 DCNN, 300 TCN and trend, "
+        "raised to at least 5,000 optimiser steps).")] = None,
     batch_size: Annotated[int | None, typer.Option(
-        "--batch-size", help="Mini-batch size (default: 1024, halved until an epoch has 64 "
-        "batches).")] = None,
+        "--batch-size", help="Mini-batch size (default: 1024, halved until an epoch has 16 "
+        "batches, not below 32).")] = None,
     lr: Annotated[float, typer.Option("--lr", help="Initial learning rate (Adam).")] = 1e-3,
     patience: Annotated[int | None, typer.Option(
         "--patience", help="Early-stopping patience in epochs (default: 5, raised to at "
