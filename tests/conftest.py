@@ -13,7 +13,6 @@ from engine_model import EngineModel
 from engine_model.physics.atmosphere import t2_from_flight
 
 REPO = Path(__file__).resolve().parents[1]
-REFERENCE_NAME = "cmapss-fd002-operating-points.csv"
 
 
 def load_script(path: Path, name: str):
@@ -51,16 +50,11 @@ def w_rows(points):
 
 
 def reference_csv():
-    """The C-MAPSS FD002 early-life operating-point table: the repository's own copy
-    (data_samples/) if present, else shared/reference/ found by walking up from tests/."""
-    own = REPO / "data_samples" / REFERENCE_NAME
-    if own.is_file():
-        return own
-    for parent in Path(__file__).resolve().parents:
-        cand = parent / "shared" / "reference" / REFERENCE_NAME
-        if cand.is_file():
-            return cand
-    return None
+    """The C-MAPSS FD002 early-life operating-point table packaged with hyprog (the tests
+    need nothing outside the repository)."""
+    from engine_model.analysis.reference import default_reference_path
+
+    return default_reference_path()
 
 
 @pytest.fixture(scope="session")

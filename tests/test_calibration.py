@@ -159,8 +159,26 @@ def test_x_hat_matches_the_model_at_theta_hat(model, results, degraded):
     pt = model.evaluate(degraded[["alt", "Mach", "TRA", "T2"]].iloc[[i]], theta=th)
     for c in ("T48", "Wf", "P45", "W25", "SmHPC"):
         assert res.x_hat[c + "_hat"].iloc[i] == pytest.approx(pt[c].iloc[0], rel=1e-8)
-    # virtual sensors close to the noise-free truth of the simulator
+    # virtual sensors close to the noise-free truth of the simulator: within what theta_hat's
+    # own error allows, |dx/dtheta| 4 sigma summed over the three parameters (linearised,
+    # the sensitivities by central differences at the truth), at every 50th sample
     assert np.all(np.isfinite(res.x_hat.to_numpy()))
+    rows = np.arange(0, len(degraded), 50)
+    w = degraded[["alt", "Mach", "TRA", "T2"]].iloc[rows]
+    th_true = degraded[list(THETA_NAMES)].iloc[rows].to_numpy()
+    truth = model.evaluate(w, theta=th_true)
+    std = res.theta_std[[q + "_hat_std" for q in PAPER_THETA]].iloc[rows].to_numpy()
+    allow = np.zeros((len(rows), len(XV_NAMES)))
+    for j, q in enumerate(PAPER_THETA):
+        d = np.zeros(len(THETA_NAMES))
+        d[THETA_NAMES.index(q)] = 1e-4
+        up = model.evaluate(w, theta=th_true + d)[list(XV_NAMES)].to_numpy()
+        dn = model.evaluate(w, theta=th_true - d)[list(XV_NAMES)].to_numpy()
+        allow += np.abs((up - dn) / 2e-4) * 4 * std[:, [j]]
+    err = np.abs(res.x_hat[[c + "_hat" for c in XV_NAMES]].iloc[rows].to_numpy()
+                 - truth[list(XV_NAMES)].to_numpy())
+    assert np.all(err <= allow + 1e-9 * np.abs(truth[list(XV_NAMES)].to_numpy())), \
+        np.max(err / np.maximum(allow, 1e-300))
 
 
 def test_features_table_has_the_papers_columns(results, degraded):

@@ -109,7 +109,7 @@ def test_reference_json_sls_row_matches_cmapss(runner):
     assert all(row["converged"] for row in rows)
     sls = next(row for row in rows if row["alt_kft"] == 0 and row["Mach"] == 0)
     for c in SLS_CHANNELS:
-        assert abs(sls[f"{c}_err_pct"]) < 2.0, (c, sls[f"{c}_err_pct"])
+        assert abs(sls[f"{c}_err_pct"]) < 1e-4, (c, sls[f"{c}_err_pct"])  # the design point
         assert sls[f"{c}_err_pct"] == pytest.approx(
             100 * (sls[f"{c}_model"] - sls[f"{c}_ref"]) / sls[f"{c}_ref"])
     # the controller holds corrected fan speed on its TRA schedule at every row
@@ -156,7 +156,6 @@ def test_envelope_json_all_points_converge(runner):
     assert d["n_points"] == 50
     assert d["convergence_rate"] == 1.0
     assert d["n_failed"] == 0 and d["failures"] == []
-    assert d["points_per_second"] > 0
 
 
 def test_envelope_points_stay_inside_the_civil_envelope():

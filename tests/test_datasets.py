@@ -166,7 +166,7 @@ def test_failed_parquet_write_leaves_an_existing_target_untouched(tmp_path, flee
     target = write_parquet(fleet.iloc[:40], tmp_path / "fleet.parquet", {"seed": 1})
     before = tree_bytes(target)
     _fail_on_second_part(monkeypatch)
-    with pytest.raises(RuntimeError):
+    with pytest.raises(RuntimeError, match="disk full"):
         write_parquet(fleet, target, META)
     assert tree_bytes(target) == before
     assert siblings(target) == []
@@ -479,7 +479,8 @@ def test_parquet_unit_writer_streams_the_same_layout(tmp_path):
         assert f.read_bytes() == (b / f.relative_to(a)).read_bytes()
     # an error mid-stream leaves nothing behind
     c = tmp_path / "broken"
-    with pytest.raises(RuntimeError), datasets.parquet_unit_writer(c, meta) as write_unit:
+    with (pytest.raises(RuntimeError, match="simulated crash"),
+          datasets.parquet_unit_writer(c, meta) as write_unit):
         write_unit(df[df.unit == df.unit.iloc[0]])
         raise RuntimeError("simulated crash")
     assert not c.exists() and not list(tmp_path.glob(".broken*"))

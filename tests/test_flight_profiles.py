@@ -103,7 +103,7 @@ def test_every_point_inside_the_model_envelope(whole_flights):
         assert f.TRA.min() >= 15.0 and f.TRA.max() <= 100.0
     bad = whole_flights[1][0].w.copy()
     bad[5, 1] = 0.95
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match=r"row 5, column Mach = 0.95 is outside the flight"):
         check_w(bad)
 
 

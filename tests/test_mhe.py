@@ -229,10 +229,11 @@ def test_unobservable_parameter_is_reported(model, unit):
     assert res.theta_std["LPT_eff_mod_hat_std"].isna().all()
     assert np.isfinite(res.theta_hat["fan_flow_mod_hat"]).all()
     assert res.diagnostics["observable"] == ["fan_flow_mod"]
-    with pytest.raises(UnobservableError):
+    with pytest.raises(UnobservableError, match="cannot be observed with sensors P2"):
         get_estimator("mhe", model, window=30).estimate(
             df, CalibrationSetup(params=params, sensors=("P2",), unobservable="raise"))
-    with pytest.raises(UnobservableError):  # P2 alone sees none of the turbine parameters
+    with pytest.raises(UnobservableError,  # P2 alone sees none of the turbine parameters
+                       match="HPT_eff_mod, LPT_eff_mod, LPT_flow_mod cannot be observed"):
         get_estimator("mhe", model, window=30).estimate(df, CalibrationSetup(sensors=("P2",)))
 
 

@@ -136,9 +136,9 @@ def test_conformal_rank_and_quantile():
     scores = np.arange(1.0, 100.0)[::-1]  # 99 scores 1..99 in any order
     assert conformal_quantile(scores, 0.1) == 90.0
     assert conformal_quantile([1.0, 2.0], 0.1) == math.inf
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match="no calibration scores"):
         conformal_quantile([], 0.1)
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match=r"alpha must lie in \(0, 1\), got 1.5"):
         conformal_rank(10, 1.5)
 
 

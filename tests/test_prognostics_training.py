@@ -141,7 +141,8 @@ def test_ensemble_spread_conformal_units_and_max_rul(make_features):
     np.testing.assert_allclose(p["RUL_upper"] - p["RUL_pred"], m.conformal.quantile)
     assert np.all(p["RUL_lower"] >= 0)
     metrics, _ = m.evaluate(df, [5, 6])
-    assert 0.0 <= metrics["samples"]["overall"]["coverage"] <= 1.0
+    inside = (p["RUL"] >= p["RUL_lower"]) & (p["RUL"] <= p["RUL_upper"])
+    assert metrics["samples"]["overall"]["coverage"] == pytest.approx(inside.mean(), abs=1e-12)
     with pytest.raises(InputError, match="unit.* 4 are both development and test"):
         fit(df, meta, TrainConfig(model="fnn", test_units=(4,), units=(1, 2, 3, 4),
                                   epochs=1, **TINY))

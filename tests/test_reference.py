@@ -102,7 +102,6 @@ def test_envelope_report_counts_failures_and_reports_them():
     assert rep["failures"][0]["alt"] == pts.at[3, "alt"]
     assert rep["failures"][0]["residual_norm"] == 1.0
     assert set(model.seen.columns) == {*W_NAMES, *THETA_NAMES}  # no dT_isa passed on
-    assert rep["points_per_second"] is None or rep["points_per_second"] > 0
 
 
 def test_envelope_points_are_reproducible_and_inside_the_envelope():
@@ -123,5 +122,5 @@ def test_engine_model_against_cmapss_has_finite_errors_on_every_channel():
     assert np.isfinite(table.to_numpy()).all()
     sls = table.loc["0 kft M0 TRA100"]
     design = ["T24", "T30", "T50", "P15", "P30", "Nf", "Nc", "BPR", "W31", "W32", "epr"]
-    assert (sls[design].abs() < 2.0).all(), sls  # the design point
+    assert (sls[design].abs() < 1e-4).all(), sls  # the design point, built from these [%]
     assert (table["NRf"].abs() < 0.05).all()  # corrected fan speed held on its schedule
