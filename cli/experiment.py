@@ -34,6 +34,8 @@ def _seeds(text: str, option: str) -> tuple[int, ...]:
         seeds = tuple(int(s) for s in text.split(",") if s.strip())
     except ValueError:
         raise CliError(f"{option} {text}: expected a count or comma-separated seeds") from None
+    if not seeds:
+        raise CliError(f"{option} {text!r}: no seed listed")
     twice = sorted({s for s in seeds if seeds.count(s) > 1})
     if twice:  # one network counted as two would report an ensemble spread of 0
         raise CliError(f"{option} {text}: seed(s) {', '.join(map(str, twice))} listed twice")

@@ -134,11 +134,15 @@ def test_filter_innovations_are_white_unit_noise(results, method):
     res = results[method]
     r = res.residuals.to_numpy()[10:]
     assert res.residuals.columns.tolist() == list(XS_NAMES)
-    # normalised innovations have about unit variance and no bias
-    assert np.all(np.abs(r.mean(axis=0)) < 0.25)
+    # innovations white: no bias beyond 4 standard errors (1 / sqrt(n) each)
+    n = len(r)
+    assert np.all(np.abs(r.mean(axis=0)) < 4 / np.sqrt(n))
+    # scaled by the sensor noise alone, their std also carries theta's uncertainty (H P H^T):
+    # about 1, above it where P is still large
     assert np.all((r.std(axis=0) > 0.85) & (r.std(axis=0) < 1.25))
-    # NIS is chi-square with 16 degrees of freedom: mean 16
-    assert 14.0 < res.diagnostics["nis_mean"] < 18.5
+    # NIS (scaled by the innovation covariance) is chi-square with 16 degrees of freedom: its
+    # mean is 16 within 4 standard errors, sqrt(2 16 / n)
+    assert abs(res.diagnostics["nis_mean"] - 16.0) < 4 * np.sqrt(32 / n)
 
 
 def test_ukf_and_ekf_agree_on_a_nearly_linear_problem(results):
@@ -369,5 +373,5 @@ def test_filters_are_near_the_crb(model, results, degraded):
             e, s = errors(results[m], degraded, q)
             rmse = np.sqrt(np.mean(e ** 2))
             # the filter's own std is its CRB (nearly linear model, exact R and Q)
-            assert np.sqrt(np.mean(s ** 2)) == pytest.approx(bound, rel=0.1)
+            assert np.sqrt(np.mean(s ** 2)) == pytest.approx(bound, rel=0.02)
             assert rmse < 1.5 * bound, (m, q, rmse, bound)

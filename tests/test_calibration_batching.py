@@ -88,9 +88,22 @@ def test_observability_batches_are_bounded_and_change_no_number(model, units, mo
     setup = SETUP.for_dataset(meta)
     series = [prepare_unit(f, setup) for f in frames]
     whole = check_observability_many(model, series, setup)
-    monkeypatch.setattr(obs, "OBSERVABILITY_BATCH_POINTS", 1)  # one unit a batch
-    for a, b in zip(check_observability_many(model, series, setup), whole, strict=True):
-        _same(a.fisher, b.fisher)
+    real, batches = obs._fisher_batch, []
+
+    def spy(model, batch_series, setup, rows, *rest):
+        batches.append([len(r) for r in rows])
+        return real(model, batch_series, setup, rows, *rest)
+
+    monkeypatch.setattr(obs, "_fisher_batch", spy)
+    sizes = [len(obs.sample_rows(len(s), setup)) for s in series]
+    for limit in (1, sizes[0] + sizes[1]):  # one unit a batch; the first two together
+        batches.clear()
+        monkeypatch.setattr(obs, "OBSERVABILITY_BATCH_POINTS", limit)
+        for a, b in zip(check_observability_many(model, series, setup), whole, strict=True):
+            _same(a.fisher, b.fisher)
+        assert sum(batches, []) == sizes  # every unit once, whole, in order
+        assert all(len(b) == 1 or sum(b) <= limit for b in batches), batches
+    assert batches[0] == sizes[:2]
 
 
 def test_batched_evaluation_equals_casadi_call(model):

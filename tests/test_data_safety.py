@@ -491,11 +491,16 @@ def test_non_convergence_exits_1_bad_input_exits_2(runner, monkeypatch):
 # ------------------------------------------------------------------------------------------
 # 10. an absurd effect parameter is named before anything is built
 # ------------------------------------------------------------------------------------------
-def test_effect_parameter_outside_its_valid_range(runner, tmp_path):
-    t0 = time.perf_counter()
+def test_effect_parameter_outside_its_valid_range(runner, tmp_path, monkeypatch):
+    from engine_model.solver.model import EngineModel
+
+    def built(*a, **k):
+        raise AssertionError("an engine model was built before the effect was checked")
+
+    monkeypatch.setattr(EngineModel, "__init__", built)
     r = run(runner, "simulate", "--effect", "customer_bleed:f0=-5", "--out", tmp_path / "x")
     assert_error(r, "customer_bleed", "f0 = -5", "valid range [0, 0.1]")
-    assert time.perf_counter() - t0 < 5.0  # no model variant compiled
+    monkeypatch.undo()
     lib = json.loads(run(runner, "effects", "--json").stdout)
     assert all(q["valid"] is not None for e in lib for q in e["parameters"]
                if q["kind"] == "model" and q["name"] != "offset")

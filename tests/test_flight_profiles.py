@@ -1,6 +1,5 @@
 """Flight profiles: reproducibility, flight classes, recording, and the physics of the traces."""
 
-import time
 
 import numpy as np
 import pytest
@@ -233,12 +232,10 @@ def test_severity_typical_medium_flight_is_one_and_short_hot_full_thrust_is_hars
     assert fp.flight_severity(92, 0, 1.5) > fp.flight_severity(92, 0, 7.0)
 
 
-def test_eight_hour_flight_is_fast():
+def test_an_eight_hour_flight_has_every_second():
+    """Every second of a long flight is recorded, once and in order (its speed is measured
+    in benchmarks/fleet_generation.py, not here)."""
     route = fp.Route(Fc=3, duration_h=8.0, cruise_alt_ft=37000.0, cruise_mach=0.84, n_steps=2)
-    best = np.inf
-    for seed in range(3):
-        t0 = time.perf_counter()
-        f = fp.fly(route, seed, record="all")
-        best = min(best, time.perf_counter() - t0)
+    f = fp.fly(route, 0, record="all")
     assert len(f.t) == 8 * 3600
-    assert best < 0.1
+    np.testing.assert_array_equal(np.diff(f.t), 1.0)

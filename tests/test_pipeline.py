@@ -148,16 +148,14 @@ def test_the_html_report_opens_with_its_summary(first_run):
 
 
 def test_rerun_skips_every_stage(first_run, config):
-    out, _, seconds = first_run
+    out, _, _ = first_run
     before = (out / "metrics.json").read_bytes()
-    t0 = time.perf_counter()
     r = hyprog("pipeline", "--config", config, "--out", out, "--json")
     assert r.returncode == 0, r.stderr
     st = stages_of(r.stdout)
     assert {k: v for k, v in st.items() if k != "data"} == {
         k: "skipped" for k in ("simulate", "calibrate", "discover", "features", "train", "evaluate",
                                "report")}
-    assert time.perf_counter() - t0 < seconds / 2
     assert (out / "metrics.json").read_bytes() == before
 
 

@@ -221,6 +221,39 @@ def test_a_tampered_checkpoint_is_refused(runner, model_dir, features_parquet, t
     assert_nothing_left(tmp_path, "p.csv")
 
 
+@pytest.mark.parametrize("change, named", [
+    ("deleted", "member-0.safetensors: weights file missing"),
+    ("outside", "weights file missing"),  # a re-signed manifest naming a file elsewhere
+    ("not a record", "model.json: malformed member record"),
+    ("no seed", "model.json: malformed member record ('seed')"),
+    ("no members", "model.json: no trained members"),
+    ("scaler", "model.json: the scaler's columns differ from the inputs"),
+    ("no config", "model.json: malformed manifest ('config')"),
+])
+def test_a_damaged_checkpoint_names_what_is_wrong(runner, model_dir, features_parquet,
+                                                  tmp_path, change, named):
+    d = tmp_path / "m"
+    shutil.copytree(model_dir, d)
+    body = json.loads((d / "model.json").read_text())
+    first = dict(body["members"][0])
+    if change == "deleted":
+        (d / "member-0.safetensors").unlink()
+    elif change == "outside":
+        (tmp_path / "elsewhere.safetensors").write_bytes((d / first["file"]).read_bytes())
+        resign_manifest(d, members=[{**first, "file": "../elsewhere.safetensors"}])
+    elif change == "not a record":
+        resign_manifest(d, members=["member-0.safetensors"])
+    elif change == "no seed":
+        resign_manifest(d, members=[{k: v for k, v in first.items() if k != "seed"}])
+    elif change == "no members":
+        resign_manifest(d, members=[])
+    elif change == "scaler":
+        resign_manifest(d, columns=body["columns"][::-1])
+    else:
+        resign_manifest(d, drop=("config",))
+    assert_user_error(run(runner, "evaluate", d, features_parquet), named)
+
+
 def test_a_checkpoint_from_another_version(runner, model_dir, features_parquet, tmp_path):
     """Another hyprog version with the same format version: a one-line warning, and it works;
     another format version: refused (checkpoint module docstring)."""
@@ -473,6 +506,10 @@ def test_experiment_refuses_a_seed_listed_twice(runner, features_parquet, tmp_pa
     r = run(runner, "experiment", "paper", "--data", features_parquet, "--out",
             tmp_path / "e", "--seeds", "1,1")
     assert_user_error(r, "--seeds 1,1", "seed(s) 1 listed twice")
+    assert not (tmp_path / "e").exists()
+    r = run(runner, "experiment", "paper", "--data", features_parquet, "--out",
+            tmp_path / "e", "--seeds", ",")
+    assert_user_error(r, "--seeds ','", "no seed listed")
     assert not (tmp_path / "e").exists()
 
 
