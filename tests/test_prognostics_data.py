@@ -52,6 +52,18 @@ def test_paper_input_sets_on_a_full_table(make_features):
     assert not set(THETA_NAMES[:6]) & set(tt)
 
 
+@pytest.mark.parametrize("spec, message", [
+    ("", "inputs: empty specification"),
+    ("hybrid++health", "inputs 'hybrid++health': empty term between '+'"),
+    ("nonsense", "t.parquet: no input column(s) nonsense (an input term is a set or group"),
+])
+def test_an_input_specification_that_names_nothing(make_features, spec, message):
+    df, _ = make_features(units=(1,), test_units=())
+    with pytest.raises(InputError) as info:
+        resolve_inputs(spec, list(df.columns), source="t.parquet")
+    assert str(info.value).startswith(message), str(info.value)
+
+
 def test_set_plus_columns_and_explicit_lists(make_features):
     df, _ = make_features(units=(1,), test_units=())
     df["phi"] = 1.0

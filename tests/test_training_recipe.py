@@ -195,7 +195,7 @@ def test_per_condition_standardisation_helps_where_conditions_dominate():
     mm = fit(df, meta, TrainConfig(normalise="minmax", **kw)).members[0]
     cond = fit(df, meta, TrainConfig(normalise="condition", **kw)).members[0]
     best = lambda m: m.history[m.best_epoch - 1]["val_loss"]  # noqa: E731
-    assert best(cond) < 0.7 * best(mm), (best(cond), best(mm))
+    assert best(cond) < 0.1 * best(mm), (best(cond), best(mm))  # an order of magnitude
 
 
 # ---------------------------------------------------------------------------------------------
