@@ -71,7 +71,9 @@ def info(
 def import_cmapss(
     train: Annotated[Path, typer.Argument(
         metavar="TRAIN", help="C-MAPSS train_FD00x.txt.")],
-    out: Annotated[Path, typer.Option("--out", help="Parquet dataset directory to write.")],
+    out: Annotated[Path, typer.Option(
+        "--out", help="Parquet dataset directory to write (an h5 name, .h5/.hdf5/.he5, is "
+        "refused: the import writes parquet only).")],
     test: Annotated[Path | None, typer.Option("--test", help="test_FD00x.txt (with --rul).")
                     ] = None,
     rul: Annotated[Path | None, typer.Option("--rul", help="RUL_FD00x.txt (with --test).")
@@ -95,6 +97,7 @@ def import_cmapss(
         if (test is None) != (rul is None):
             raise CliError("give --test and --rul together (the RUL file belongs to the test"
                            " file)")
+        datasets.output_format(out, "parquet", what="the format of import-cmapss")
         inputs = (train, test, rul)
         datasets.check_dataset_output(out, directory=True, overwrite=overwrite, inputs=inputs)
         df, meta = datasets.read_cmapss(train, test, rul)

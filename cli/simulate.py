@@ -23,7 +23,8 @@ RECORDS = ("above_10kft", "all")
 
 
 def simulate(
-    out: Annotated[Path, typer.Option("--out", help="Output: parquet directory or .h5 file.")],
+    out: Annotated[Path, typer.Option(
+        "--out", help="Output: parquet directory, or h5 file (.h5/.hdf5/.he5).")],
     preset: Annotated[str, typer.Option(
         "--preset", help="Fleet preset: ds02, ds02-study (a drawn ds02-like fleet of 30 "
         "units) or tiny.")] = "tiny",
@@ -36,8 +37,10 @@ def simulate(
     effect: Annotated[list[str] | None, typer.Option(
         "--effect", help="NAME[:param=value,...] switched on in the truth (repeatable); "
         "see `hyprog effects`.")] = None,
-    fmt: Annotated[Literal["parquet", "h5"], typer.Option("--format", help="File format.")
-                   ] = "parquet",
+    fmt: Annotated[Literal["parquet", "h5"] | None, typer.Option(
+        "--format", help="File format; default: h5 when --out ends in .h5/.hdf5/.he5, else "
+        "parquet. A --format that contradicts the --out suffix (h5 to .parquet, parquet to "
+        ".h5) is refused.")] = None,
     record: Annotated[str | None, typer.Option(
         "--record", help="above_10kft (N-CMAPSS, default) or all.")] = None,
     overwrite: Overwrite = False,
@@ -78,6 +81,7 @@ def simulate(
         if rate is not None:
             fleet.check_rate(rate)
         n_units = len(fleet.select_units(preset_obj, unit_list))
+        fmt = datasets.output_format(out, fmt, what="--format")
         out = datasets.check_dataset_output(out, directory=fmt == "parquet", overwrite=overwrite)
         with runtime.output_lock(out):  # one writer per output
             path, report = _run(fleet, preset, preset_obj, out, unit_list, rate, seed, effects,

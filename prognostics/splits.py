@@ -33,6 +33,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from engine_model.datasets.metadata import unit_list
 from engine_model.validation import InputError
 
 TRAIN, VALIDATION, CONFORMAL, TEST, UNUSED = 0, 1, 2, 3, -1
@@ -124,15 +125,8 @@ def segments(unit: np.ndarray, roles: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def metadata_units(meta: dict | None, key: str, source: str = "table") -> list[int] | None:
     """The metadata's list of units under ``key`` (``dev_units``, ``test_units``), None when
-    absent; anything but a list of unit numbers is an error naming it."""
-    listed = (meta or {}).get(key)
-    if listed is None:
-        return None
-    if not isinstance(listed, (list, tuple)) or not all(
-            isinstance(u, (int, np.integer)) and not isinstance(u, bool) for u in listed):
-        raise InputError(f"{source}: metadata {key} must be a list of unit numbers, got "
-                         f"{listed!r}")
-    return [int(u) for u in listed]
+    absent (:func:`engine_model.datasets.metadata.unit_list`)."""
+    return unit_list(meta, key, source)
 
 
 def development_and_test_units(present: Sequence[int], metadata: dict | None,

@@ -15,6 +15,7 @@ import pytest
 
 from cli.main import app
 from engine_model.datasets import read_dataset, write_parquet
+from engine_model.validation import InputError
 from tests.cli_checks import assert_user_error as check_user_error
 from tests.cli_checks import cli_runner
 from tests.test_prognostics_training import resign_manifest
@@ -375,10 +376,18 @@ def test_train_refuses_values_before_training(runner, features_parquet, tmp_path
 
 
 def test_train_names_bad_unit_lists_in_the_metadata(runner, tmp_path):
+    import pyarrow.parquet as pq
+
     from tests.conftest import synthetic_features
 
     df, meta = synthetic_features()
-    path = write_parquet(df, tmp_path / "f.parquet", {**meta, "dev_units": "abc"})
+    with pytest.raises(InputError, match="metadata dev_units must be a list of unit numbers"):
+        write_parquet(df, tmp_path / "f.parquet", {**meta, "dev_units": "abc"})
+    path = write_parquet(df, tmp_path / "f.parquet", meta)
+    for part in path.rglob("*.parquet"):  # as another tool would have written it
+        t = pq.read_table(part)
+        t = t.replace_schema_metadata({b"hyprog": json.dumps({**meta, "dev_units": "abc"})})
+        pq.write_table(t, part)
     r = run(runner, "train", path, "--model", "fnn", *FAST, "--out", tmp_path / "m")
     assert_user_error(r, "metadata dev_units must be a list of unit numbers")
 
@@ -465,7 +474,6 @@ def test_an_edited_window_in_the_manifest_is_refused_before_allocating(runner, m
 
 
 def test_windows_longer_than_memory_allows_are_refused():
-    from engine_model.validation import InputError
     from prognostics.windows import make_windows
 
     x = np.zeros((10, 3), np.float32)

@@ -57,7 +57,7 @@ from .parquet import (
     write_unit_part,
     written_units,
 )
-from .paths import H5_SUFFIXES
+from .paths import H5_SUFFIXES, output_format
 from .provenance import check_dataset_output, written_by_hyprog
 from .schema import (
     BOOKKEEPING,
@@ -82,5 +82,5 @@ __all__ = [
     "column_groups", "written_units", "write_unit_part", "parquet_unit_writer",
     "hyprog_version", "SOURCE_ROW", "check_dataset_output", "written_by_hyprog",
     "CMAPSS_COLUMNS", "CMAPSS_SENSORS", "CMAPSS_SETTINGS", "CMAPSS_SOURCE", "read_cmapss",
-    "read_cmapss_text", "read_rul_file",
+    "read_cmapss_text", "read_rul_file", "output_format",
 ]

@@ -81,7 +81,7 @@ import pandas as pd
 from ..units import FT_PER_KFT
 from ..validation import ENVELOPE, InputError
 from .paths import existing_path
-from .schema import canonical_columns
+from .schema import MAX_FLOAT_ID, canonical_columns
 
 CMAPSS_SOURCE = "cmapss-text"
 CMAPSS_SETTINGS = ("alt", "Mach", "TRA")
@@ -118,15 +118,17 @@ NOT_PHYSICAL = {"Ps30": "about 1/12 of P30 at every point: not a static pressure
 
 
 def _lines(path: Path) -> list[tuple[int, list[str]]]:
-    """(1-based line number, tokens) of every non-blank line of a text file."""
+    """(1-based line number, tokens) of every non-blank line of a text file. Lines end at
+    ``\n`` only (a ``\r`` before it, as in CRLF or ``\r\r\n`` copies, is whitespace), so
+    the numbers are those an editor shows."""
     try:
-        text = path.read_text(encoding="ascii")
+        text = path.read_bytes().decode("ascii")  # no newline translation: \r stays
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a C-MAPSS text file (byte {exc.start} is not ASCII)"
                          ) from None
     except IsADirectoryError:
         raise InputError(f"{path}: is a directory, expected a C-MAPSS text file") from None
-    return [(n, line.split()) for n, line in enumerate(text.splitlines(), 1) if line.strip()]
+    return [(n, line.split()) for n, line in enumerate(text.split("\n"), 1) if line.strip()]
 
 
 def _numbers(path: Path, rows: list[tuple[int, list[str]]],
@@ -153,13 +155,16 @@ def _numbers(path: Path, rows: list[tuple[int, list[str]]],
 
 def _check_integers(path: Path, rows: list[tuple[int, list[str]]], values: np.ndarray,
                     names: Sequence[str], minimum: int) -> None:
+    """Each column of ``values`` holds integers from ``minimum`` to 2**53 - 1
+    (:data:`~.schema.MAX_FLOAT_ID`: beyond it a float is not exact, and int64 is near); an
+    InputError names the line, column and token of the first that does not."""
     for j, name in enumerate(names):
         col = values[:, j]
-        bad = (col != np.round(col)) | (col < minimum)
+        bad = (col != np.round(col)) | (col < minimum) | (col > MAX_FLOAT_ID)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise InputError(f"{path}: line {rows[i][0]}, column {name}: {rows[i][1][j]} is"
-                             f" not an integer >= {minimum}")
+                             f" not an integer from {minimum} to 2**53 - 1")
 
 
 def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
@@ -168,8 +173,8 @@ def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
     what moved in ``df.attrs["settings_snapped"]``), ``condition`` (int64) and the 21
     sensors (module doc).
     Raises InputError naming the file, line and column of a line with the wrong number of
-    columns, a token that is not a number, a NaN, a unit / cycle that is not a positive
-    integer or a setting outside the flight envelope by more than its noise, and for a file
+    columns, a token that is not a number, a NaN, a unit / cycle that is not an integer from 1
+    to 2**53 - 1 or a setting outside the flight envelope by more than its noise, and for a file
     without data lines."""
     p = existing_path(path)
     rows = _lines(p)
@@ -235,7 +240,9 @@ def constant_channels(df: pd.DataFrame) -> list[str]:
 
 def read_rul_file(path: str | os.PathLike) -> np.ndarray:
     """``RUL_FD00x.txt``: the true RUL [cycles] of each test unit at its last cycle, one
-    non-negative integer a line, as int64 in file order."""
+    non-negative integer a line, as int64 in file order. Refused, naming the line: a line of
+    more than one number, a token that is not a number, a fraction, a negative value or one
+    above 2**53 - 1."""
     p = existing_path(path)
     rows = _lines(p)
     if not rows:

@@ -17,7 +17,7 @@ import pandas as pd
 from ..validation import InputError
 from .ncmapss_h5 import read_h5_columns, read_h5_metadata, read_ncmapss_h5, write_ncmapss_h5
 from .parquet import read_parquet, read_parquet_columns, read_parquet_metadata, write_parquet
-from .paths import H5_SUFFIXES, detect_format, existing_path
+from .paths import detect_format, existing_path, output_format
 from .schema import check_split
 
 
@@ -71,13 +71,12 @@ def write_dataset(df: pd.DataFrame, path: str | os.PathLike,
                   format: str | None = None, overwrite: bool = False,
                   inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """Write ``df`` as ``format`` ``"parquet"`` or ``"h5"``; None infers it from the suffix
-    (``.h5``/``.hdf5`` -> h5, anything else -> parquet). An existing ``path`` is replaced only
-    when hyprog wrote it or with ``overwrite``, never when it is one of ``inputs``
-    (:mod:`.provenance`)."""
+    (``.h5``/``.hdf5`` -> h5, anything else -> parquet); a format the suffix contradicts is
+    refused (:func:`~.paths.output_format`). An existing ``path`` is replaced only when hyprog
+    wrote it or with ``overwrite``, never when it is one of ``inputs`` (:mod:`.provenance`)."""
     p = Path(path)
-    fmt = format or ("h5" if p.suffix.lower() in H5_SUFFIXES else "parquet")
-    if fmt == "parquet":
+    if format in ("hdf5", "ncmapss-h5"):
+        format = "h5"
+    if output_format(p, format) == "parquet":
         return write_parquet(df, p, metadata, overwrite=overwrite, inputs=inputs)
-    if fmt in ("h5", "hdf5", "ncmapss-h5"):
-        return write_ncmapss_h5(df, p, metadata, overwrite=overwrite, inputs=inputs)
-    raise InputError(f"{p}: unknown format {format!r} (expected 'parquet' or 'h5')")
+    return write_ncmapss_h5(df, p, metadata, overwrite=overwrite, inputs=inputs)

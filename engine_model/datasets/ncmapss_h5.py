@@ -45,10 +45,12 @@ from .paths import HDF5_MAGIC, existing_path, file_magic
 from .provenance import H5_DATASET
 from .schema import (
     INT_KEYS,
+    MAX_FLOAT_ID,
     REQUIRED_COLUMNS,
     SOURCE_ROW,
     SPLITS,
     as_int_keys,
+    assign_splits,
     canonical_columns,
     check_split,
     check_units_found,
@@ -93,6 +95,9 @@ def _open_h5(path: Path) -> Iterator[h5py.File]:
 def _h5_metadata(f: h5py.File, path: Path) -> dict[str, Any]:
     raw = f.attrs.get(META_KEY)
     if isinstance(raw, np.ndarray):
+        if raw.size != 1:
+            raise InputError(f"{path}: the '{META_KEY}' attribute is an array of shape"
+                             f" {raw.shape}, expected one JSON string")
         raw = raw.item()
     if isinstance(raw, bytes):
         raw = raw.decode()
@@ -192,6 +197,11 @@ def _split_units(groups: Mapping[str, tuple[h5py.Dataset, list[str]]], split: st
     if bad.any():
         raise InputError(f"{path}: A_{split}, column unit is NaN at row "
                          f"{int(np.flatnonzero(bad)[0]) + 1}")
+    huge = np.abs(units) > MAX_FLOAT_ID
+    if huge.any():
+        i = int(np.flatnonzero(huge)[0])
+        raise InputError(f"{path}: A_{split}, column unit = {units[i]:g} at row {i + 1} is"
+                         " beyond 2**53 - 1 in magnitude (not an exact unit number)")
     return units
 
 
@@ -259,6 +269,8 @@ def read_ncmapss_h5(path: str | os.PathLike, split: str = "both",
     metadata is the file's ``hyprog`` attribute (if any) with ``dev_units`` / ``test_units``
     (every unit of each split in the file), ``sample_rate_hz`` (1 Hz unless the file says) and
     ``source_format = "ncmapss-h5"``. ``t`` is rebuilt from the sample index (module doc).
+    Refused: a unit beyond 2**53 - 1 in magnitude, a ``hyprog`` attribute that is not one JSON
+    object of the right types (a ``sample_rate_hz`` that is not a finite number > 0).
     ``source_rows`` adds :data:`~.schema.SOURCE_ROW`, the 1-based row of each sample in its
     split's arrays (``W_dev`` ...).
     """
@@ -309,30 +321,6 @@ def read_ncmapss_h5(path: str | os.PathLike, split: str = "both",
 # ---------------------------------------------------------------------------------------------
 # writing
 # ---------------------------------------------------------------------------------------------
-
-def _assign_splits(units: np.ndarray, meta: Mapping[str, Any],
-                   source: str) -> tuple[list[int], list[int]]:
-    """(dev units, test units) present in the table, from the metadata lists."""
-    present = sorted(int(u) for u in np.unique(units))
-    dev_meta, test_meta = meta.get("dev_units"), meta.get("test_units")
-    if dev_meta is None and test_meta is None:
-        return present, []
-    dev_set = {int(u) for u in dev_meta or []}
-    test_set = {int(u) for u in test_meta or []}
-    both = dev_set & test_set
-    if both:
-        raise InputError(f"{source}: unit(s) {', '.join(map(str, sorted(both)))} are in both"
-                         " dev_units and test_units")
-    if dev_meta is None:
-        dev_set = set(present) - test_set
-    if test_meta is None:
-        test_set = set(present) - dev_set
-    stray = [u for u in present if u not in dev_set | test_set]
-    if stray:
-        raise InputError(f"{source}: unit(s) {', '.join(map(str, stray))} are in neither"
-                         " dev_units nor test_units of the metadata")
-    return [u for u in present if u in dev_set], [u for u in present if u in test_set]
-
 
 def _h5_layout(columns: Sequence[str]) -> dict[str, list[str]]:
     """{group: present column names in the published order}; groups with none are left out."""
@@ -386,7 +374,10 @@ def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
     """Write ``df`` in the N-CMAPSS h5 layout (module doc); atomic (temp file + os.replace).
 
     ``metadata['dev_units']`` / ``['test_units']`` choose the split (a unit in neither is an
-    error when either is given; all units are dev when neither is). ``compression`` is an h5py
+    error when either is given, and so is a unit in both; all units are dev when neither is;
+    :func:`~.schema.assign_splits`). ``unit`` / ``cycle`` beyond 2**53 - 1 in magnitude are
+    refused (they would not read back exactly); so is a ``sample_rate_hz`` that is not a
+    finite number > 0 (:func:`~.metadata.check_metadata`). ``compression`` is an h5py
     filter name (``"gzip"``, ``"lzf"``) or None. An existing ``path`` is replaced only when
     hyprog wrote it or with ``overwrite`` (:mod:`engine_model.runtime.ownership`). Returns the
     path written.
@@ -394,8 +385,14 @@ def write_ncmapss_h5(df: pd.DataFrame, path: str | os.PathLike,
     path = Path(path)
     source = str(path)
     table = prepare_for_write(df, source)
+    for key in INT_KEYS:  # the readers take A as float64 (MAX_FLOAT_ID)
+        huge = np.abs(table[key].to_numpy()) > MAX_FLOAT_ID
+        if huge.any():
+            raise InputError(f"{source}: {key} {table[key].to_numpy()[huge][0]} is beyond 2**53 - 1"
+                             " in magnitude; the h5 layout reads it back as a float, where it"
+                             " is not exact (write parquet)")
     meta = metadata_for_write(metadata, source)
-    dev, test = _assign_splits(table["unit"].to_numpy(), meta, source)
+    dev, test = assign_splits(table["unit"].to_numpy(), meta, source)
     meta.update(dev_units=dev, test_units=test)
     layout = _h5_layout(list(table.columns))
     _warn_dropped(list(table.columns), layout, source)

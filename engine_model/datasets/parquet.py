@@ -7,8 +7,11 @@ not hold ``unit`` (the directory name does). Each part file carries the metadata
 (:mod:`.metadata`) as JSON in its Arrow schema metadata under the key ``hyprog``; there is no
 sidecar. Columns keep the order they were written in, with ``unit`` first. Part files are
 zstd-compressed. :func:`read_parquet` also reads a single parquet file (``unit`` from a column,
-or from a ``unit=<n>`` parent directory). Files and directories whose name starts with ``.``
-or ``_`` are not read (a writer's temporaries, see :mod:`engine_model.runtime.atomic`).
+or from a ``unit=<n>`` parent directory) and a directory of parquet files holding ``unit``
+(pandas' ``to_parquet``; an index it stored is read as the column(s) the file holds). Files
+and directories whose name starts with ``.`` or ``_`` are not read (a writer's temporaries,
+see :mod:`engine_model.runtime.atomic`); any other parquet file outside the layout (a copy in
+a sub-folder) is an error naming it, not read.
 
 Writers: :func:`write_parquet` (a whole table), :func:`parquet_unit_writer` (a stream of
 units, the directory appears when the last is written) and :func:`write_unit_part` (one unit
@@ -45,6 +48,7 @@ from .provenance import PARQUET_DATASET, PARQUET_FEATURES, UNIT_PARTITION
 from .schema import (
     REQUIRED_COLUMNS,
     SOURCE_ROW,
+    assign_splits,
     canonical_columns,
     check_units_found,
     normalise_table,
@@ -95,16 +99,23 @@ def write_parquet(df: pd.DataFrame, path: str | os.PathLike,
     """Write ``df`` as a parquet directory partitioned by unit (``unit=<n>/part-0.parquet``).
 
     Rows are sorted by unit, cycle, t; ``metadata`` is stored as JSON under the schema metadata
-    key ``hyprog`` of every part file. The directory appears only when complete (see
-    :mod:`engine_model.runtime.atomic`); an existing ``path`` is replaced only when hyprog wrote it
-    or with ``overwrite``, never when it is one of the command's ``inputs``
-    (:mod:`engine_model.runtime.ownership`). Returns the path written.
+    key ``hyprog`` of every part file. Its ``dev_units`` / ``test_units``, when either is
+    given, are checked as the h5 writer's (:func:`~.schema.assign_splits`: a unit in both or
+    a unit of the table in neither is refused) and stored as the table's units of each. The
+    directory appears only when complete (see :mod:`engine_model.runtime.atomic`); an existing
+    ``path`` is replaced only when hyprog wrote it or with ``overwrite``, never when it is one
+    of the command's ``inputs`` (:mod:`engine_model.runtime.ownership`). Returns the path
+    written.
     """
     path = Path(path)
     source = str(path)
     table = prepare_for_write(df, source)
-    meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
+    meta = metadata_for_write(metadata, source)
     units = table["unit"].to_numpy()
+    if meta.get("dev_units") is not None or meta.get("test_units") is not None:
+        dev, test = assign_splits(units, meta, source)
+        meta.update(dev_units=dev, test_units=test)
+    meta_json = metadata_json(meta, source).encode()
     body = table.drop(columns="unit")
     kind = PARQUET_FEATURES if "calibration" in (metadata or {}) else PARQUET_DATASET
     with atomic_output(path, kind, overwrite, inputs) as tmp:
@@ -124,12 +135,14 @@ def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | N
                 write_unit(df_unit)
 
     The directory appears only when the block completes; on any error nothing is left.
-    ``metadata`` is fixed when the writer opens (it goes into every part file). An existing
-    ``path`` is checked when the writer opens (:mod:`engine_model.runtime.ownership`).
+    ``metadata`` is fixed when the writer opens (it goes into every part file); each unit
+    written is checked against its ``dev_units`` / ``test_units`` (:func:`~.schema.assign_splits`).
+    An existing ``path`` is checked when the writer opens (:mod:`engine_model.runtime.ownership`).
     """
     path = Path(path)
     source = str(path)
-    meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
+    meta = metadata_for_write(metadata, source)
+    meta_json = metadata_json(meta, source).encode()
     written: set[int] = set()
     with atomic_output(path, PARQUET_DATASET, overwrite) as tmp:
         def write_unit(df: pd.DataFrame) -> None:
@@ -139,6 +152,7 @@ def parquet_unit_writer(path: str | os.PathLike, metadata: Mapping[str, Any] | N
             for unit, rows in _unit_slices(units):
                 if unit in written:
                     raise InputError(f"{source}: unit {unit} written twice")
+                assign_splits(np.array([unit]), meta, source)
                 written.add(unit)
                 _write_part(body.iloc[rows], tmp / f"unit={unit}" / PARQUET_PART, meta_json)
 
@@ -170,14 +184,17 @@ def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
     ``unit=<n>`` is built as a hidden temporary directory and renamed into place, so there is
     never an empty ``unit=<n>/`` (:func:`engine_model.runtime.atomic.atomic_output`, kind
     :data:`.provenance.UNIT_PARTITION`). An existing partition of the same unit is replaced
-    when it holds nothing but its part file. Returns the part file."""
+    when it holds nothing but its part file. The unit is checked against the metadata's
+    ``dev_units`` / ``test_units`` (:func:`~.schema.assign_splits`). Returns the part file."""
     path = Path(path)
     source = str(path)
     table = prepare_for_write(df, source)
     units = table["unit"].unique()
     if len(units) != 1:
         raise InputError(f"{source}: write_unit_part takes one unit, got {len(units)}")
-    meta_json = metadata_json(metadata_for_write(metadata, source), source).encode()
+    meta = metadata_for_write(metadata, source)
+    assign_splits(units, meta, source)
+    meta_json = metadata_json(meta, source).encode()
     unit_dir = path / f"unit={int(units[0])}"
     with atomic_output(unit_dir, UNIT_PARTITION) as tmp:
         _write_part(table.drop(columns="unit"), tmp / PARQUET_PART, meta_json)
@@ -188,13 +205,32 @@ def write_unit_part(df: pd.DataFrame, path: str | os.PathLike,
 # reading
 # ---------------------------------------------------------------------------------------------
 
+def _hidden(name: str) -> bool:
+    return name.startswith((".", "_"))
+
+
 def _is_hive_by_unit(path: Path) -> bool:
     return any(p.is_dir() and p.name.startswith("unit=") for p in path.iterdir())
 
 
 def _parquet_files(path: Path) -> list[Path]:
-    files = sorted(p for p in path.rglob("*.parquet")
-                   if not any(part.startswith((".", "_")) for part in p.relative_to(path).parts))
+    """The parquet files of a dataset directory, in one of its two layouts: ``unit=<n>/
+    *.parquet`` (the writers', or pandas' ``partition_cols=["unit"]``) or ``*.parquet``
+    directly in it (``unit`` a column). Names starting with ``.`` or ``_`` are skipped. A
+    parquet file anywhere else (a copy in a sub-folder, which would add its rows again) or a
+    directory mixing the two layouts is an InputError naming the file."""
+    if _is_hive_by_unit(path):
+        files = sorted(f for d in path.iterdir() if d.is_dir() and d.name.startswith("unit=")
+                       for f in d.iterdir() if f.suffix == ".parquet" and not _hidden(f.name))
+    else:
+        files = sorted(f for f in path.iterdir() if f.suffix == ".parquet"
+                       and not _hidden(f.name))
+    layout = "unit=<n>/*.parquet" if _is_hive_by_unit(path) else "*.parquet in it"
+    keep = set(files)
+    for f in sorted(path.rglob("*.parquet")):
+        if f not in keep and not any(_hidden(part) for part in f.relative_to(path).parts):
+            raise InputError(f"{f}: a parquet file outside the dataset's layout ({layout}) of"
+                             f" {path}; move it out of the dataset directory")
     if not files:
         raise InputError(f"{path}: no parquet files in this directory")
     return files
@@ -231,12 +267,14 @@ def _check_same_columns(files: list[Path]) -> None:
 def _open_parquet(path: Path) -> tuple[pds.Dataset, int | None]:
     """A pyarrow dataset over ``path`` and, for a lone part file, the unit of its directory."""
     try:
-        if path.is_dir():
-            _check_same_columns(_parquet_files(path))
+        if path.is_dir():  # only the files of its layout (:func:`_parquet_files`)
+            files = _parquet_files(path)
+            _check_same_columns(files)
             partitioning = None
             if _is_hive_by_unit(path):
                 partitioning = pds.partitioning(pa.schema([("unit", pa.int64())]), flavor="hive")
-            return pds.dataset(path, format="parquet", partitioning=partitioning), None
+            return pds.dataset([str(f) for f in files], format="parquet",
+                               partitioning=partitioning, partition_base_dir=str(path)), None
         dataset = pds.dataset(path, format="parquet")
         unit = None if "unit" in dataset.schema.names else _unit_from_dir(path)
         return dataset, unit
@@ -305,17 +343,19 @@ def read_parquet(path: str | os.PathLike, units: Sequence[int] | None = None,
     wanted = selected_columns(names, columns, source)
     file_columns = [c for c in wanted if c in dataset.schema.names]
     flt = None
-    in_file_order = p.is_file()  # a lone file's row numbers need it read unfiltered
-    if units is not None and dir_unit is None and not in_file_order:
+    by_unit = p.is_dir() and _is_hive_by_unit(p)
+    in_file_order = not by_unit  # a file's row numbers need it read unfiltered
+    if units is not None and by_unit:
         flt = pds.field("unit").isin([int(u) for u in units])
-    try:
-        df = dataset.to_table(columns=file_columns, filter=flt).to_pandas()
+    try:  # the columns the files hold: pandas' index metadata is not applied
+        df = dataset.to_table(columns=file_columns, filter=flt).to_pandas(ignore_metadata=True)
+        sizes = [] if by_unit else [f.count_rows() for f in dataset.get_fragments()]
     except (pa.ArrowException, OSError) as exc:
         raise _arrow_error(p, exc) from None
-    if p.is_dir():  # the row of the unit's part file
+    if by_unit:  # the row of the unit's part file
         rows = df.groupby("unit", sort=False).cumcount().to_numpy() + 1
-    else:
-        rows = np.arange(1, len(df) + 1)
+    else:  # the row of its file (the files are read in order)
+        rows = np.concatenate([np.arange(1, n + 1) for n in sizes] or [np.zeros(0, int)])
     df[SOURCE_ROW] = rows.astype(np.int64)
     wanted = [*wanted, SOURCE_ROW]
     if in_file_order and units is not None and dir_unit is None:

@@ -51,3 +51,21 @@ def detect_format(path: Path) -> str:
     if head.startswith(PARQUET_MAGIC):
         return "parquet"
     raise InputError(f"{path}: not a parquet dataset or an N-CMAPSS h5 file (unknown format)")
+
+
+def output_format(path: str | os.PathLike, format: str | None = None,
+                  what: str = "the format") -> str:
+    """The format (``"parquet"`` or ``"h5"``) to write ``path`` in: ``format`` when given,
+    else from the suffix (``.h5``/``.hdf5``/``.he5`` -> h5, anything else -> parquet). A
+    ``format`` that contradicts the suffix (h5 named ``.parquet``/``.pq``, parquet named
+    ``.h5``) is an InputError naming both; ``what`` names the format's source (``--format``)."""
+    suffix = Path(path).suffix.lower()
+    named = "h5" if suffix in H5_SUFFIXES else "parquet" if suffix in PARQUET_SUFFIXES else None
+    if format is None:
+        return named or "parquet"
+    if format not in ("parquet", "h5"):
+        raise InputError(f"{path}: unknown format {format!r} (expected 'parquet' or 'h5')")
+    if named is not None and named != format:
+        raise InputError(f"{path}: the suffix {suffix} is for {named}, but {what} is {format};"
+                         " change one of them")
+    return format

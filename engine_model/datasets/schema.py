@@ -13,6 +13,13 @@ Only ``unit cycle alt Mach TRA T2`` are required; any sensor, virtual or truth c
 absent (a user's file), and further columns are kept. ``unit`` and ``cycle`` must not be NaN.
 Tables are returned sorted by ``unit, cycle, t`` with a fresh RangeIndex.
 
+Ids: ``unit`` and ``cycle`` stored as integers must fit int64 (a uint64 above 2**63 - 1 is
+refused); stored as floats or text they must be integers of magnitude at most
+:data:`MAX_FLOAT_ID` (2**53 - 1: float64 holds every integer below 2**53 exactly, and no
+2**53 read can be told from a rounded 2**53 + 1); otherwise the
+error names the column, the row and the value. ``Fc``/``hs``/``RUL`` beyond that range stay
+float64. The column name :data:`SOURCE_ROW` is reserved: a table holding it is not written.
+
 Values: the channel columns (w, x_s, x_v, phi, theta, ``t``) are numbers; a column of numeric
 strings (a CSV-born parquet file) is read as float64, a value that is not a number is an error
 naming the column, the row and the value. Rows in messages are 1-based rows of the user's file
@@ -24,7 +31,8 @@ is which is recorded in the metadata (:mod:`.metadata`) or, for h5, by the array
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -38,6 +46,10 @@ INT_KEYS = ("unit", "cycle")  # must be integers, never NaN
 INT_OPTIONAL = ("Fc", "hs", "RUL")  # int64 when every value is an integer
 SORT_KEYS = ("unit", "cycle", "t")
 SOURCE_ROW = "source_row"  # 1-based row of the user's file (readers add it on request)
+#: the largest magnitude of a ``unit`` / ``cycle`` read as a float: float64 holds every
+#: integer below 2**53 exactly; from 2**53 on, a value may be another id rounded (2**53 + 1
+#: reads as 2**53), so ids would merge or change without a word
+MAX_FLOAT_ID = 2**53 - 1
 SPLITS = ("dev", "test")
 CANONICAL = (*BOOKKEEPING, *W_NAMES, *XS_NAMES, *XV_NAMES, "phi", *THETA_NAMES)
 
@@ -109,12 +121,22 @@ def as_numeric(df: pd.DataFrame, source: str) -> pd.DataFrame:
 
 
 def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
-    """``unit``/``cycle`` to int64 (NaN or fractions are errors); Fc/hs/RUL to int64 if exact;
-    ``t`` to float64."""
+    """``unit``/``cycle`` to int64 (NaN, fractions, an integer type's value beyond int64 or a
+    float's beyond :data:`MAX_FLOAT_ID` are errors); Fc/hs/RUL to int64 if exact; ``t`` to
+    float64."""
     out = {}
     for name in (k for k in INT_KEYS if k in df.columns):
         col = df[name]
         if col.dtype == np.int64:
+            continue
+        if isinstance(col.dtype, np.dtype) and col.dtype.kind in "iu":  # exact, if it fits
+            ints = col.to_numpy()
+            big = ints > np.iinfo(np.int64).max if col.dtype.kind == "u" else np.zeros(0, bool)
+            if big.any():
+                i = int(np.flatnonzero(big)[0])
+                raise InputError(f"{source}: column {name} = {ints[i]} at row {row_label(df, i)}"
+                                 " is larger than an int64 holds")
+            out[name] = ints.astype(np.int64)
             continue
         values = pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64,
                                                                na_value=np.nan)
@@ -129,12 +151,19 @@ def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
             row = row_label(df, int(np.flatnonzero(frac)[0]))
             raise InputError(f"{source}: column {name} = {values[frac][0]:g} at row {row} is"
                              " not an integer")
+        huge = np.abs(values) > MAX_FLOAT_ID
+        if huge.any():
+            i = int(np.flatnonzero(huge)[0])
+            raise InputError(f"{source}: column {name} = {values[i]:g} at row {row_label(df, i)}"
+                             " is beyond 2**53 - 1 in magnitude (not exact as a float; store ids"
+                             " as int64)")
         out[name] = values.astype(np.int64)
     for name in INT_OPTIONAL:
         if name in df.columns and df[name].dtype != np.int64:
             values = pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=np.float64,
                                                                        na_value=np.nan)
-            if np.isfinite(values).all() and (values == np.round(values)).all():
+            if (np.isfinite(values).all() and (values == np.round(values)).all()
+                    and (np.abs(values) <= MAX_FLOAT_ID).all()):
                 out[name] = values.astype(np.int64)
     if "t" in df.columns and df["t"].dtype != np.float64:
         out["t"] = df["t"].to_numpy(dtype=np.float64, na_value=np.nan)
@@ -183,10 +212,14 @@ def normalise_table(df: pd.DataFrame, source: str, unit_first: bool = True,
 
 
 def prepare_for_write(df: pd.DataFrame, source: str) -> pd.DataFrame:
-    """A table a writer may store: the required columns present, at least one row,
-    normalised (:func:`normalise_table`)."""
+    """A table a writer may store: the required columns present, no column named
+    :data:`SOURCE_ROW` (reserved for the readers), at least one row, normalised
+    (:func:`normalise_table`)."""
     if not isinstance(df, pd.DataFrame):
         raise InputError(f"{source}: expected a pandas DataFrame, got {type(df).__name__}")
+    if SOURCE_ROW in df.columns:
+        raise InputError(f"{source}: column {SOURCE_ROW} is reserved (the readers add it for"
+                         " the rows of error messages); rename or drop it before writing")
     check_columns(list(df.columns), REQUIRED_COLUMNS, what=source)
     if len(df) == 0:
         raise InputError(f"{source}: the table has no rows")
@@ -217,3 +250,32 @@ def check_split(split: str, source: object) -> None:
     """``split`` is ``"dev"``, ``"test"`` or ``"both"``."""
     if split not in ("both", *SPLITS):
         raise InputError(f"{source}: split must be 'dev', 'test' or 'both', got {split!r}")
+
+
+def assign_splits(units: np.ndarray, meta: Mapping[str, Any],
+                  source: str) -> tuple[list[int], list[int]]:
+    """(dev units, test units) of the ``units`` present in a table being written, from the
+    metadata's ``dev_units`` / ``test_units`` (both writers, and per unit for the streaming
+    ones). All units are dev when neither list is given; a unit missing from the one list
+    given is in the other. Refused (InputError): a unit in both lists, a present unit in
+    neither. A listed unit the table lacks is left out of the result (a writer stores the
+    lists of what it wrote)."""
+    present = sorted(int(u) for u in np.unique(units))
+    dev_meta, test_meta = meta.get("dev_units"), meta.get("test_units")
+    if dev_meta is None and test_meta is None:
+        return present, []
+    dev_set = {int(u) for u in dev_meta or []}
+    test_set = {int(u) for u in test_meta or []}
+    both = dev_set & test_set
+    if both:
+        raise InputError(f"{source}: unit(s) {', '.join(map(str, sorted(both)))} are in both"
+                         " dev_units and test_units")
+    if dev_meta is None:
+        dev_set = set(present) - test_set
+    if test_meta is None:
+        test_set = set(present) - dev_set
+    stray = [u for u in present if u not in dev_set | test_set]
+    if stray:
+        raise InputError(f"{source}: unit(s) {', '.join(map(str, stray))} are in neither"
+                         " dev_units nor test_units of the metadata")
+    return [u for u in present if u in dev_set], [u for u in present if u in test_set]

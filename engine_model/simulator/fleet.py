@@ -66,7 +66,7 @@ from engine_model.runtime.atomic import atomic_output, remove_path, swap_into_pl
 from engine_model.runtime.cluster import check_scheduler, executor
 from engine_model.runtime.ownership import OWNED_FILE
 from engine_model.runtime.shared_model import process_model
-from engine_model.validation import InputError
+from engine_model.validation import InputError, check_seed
 
 from . import degradation, flight_profiles, sensor_noise
 
@@ -344,7 +344,7 @@ def simulate_unit_task(task: dict, model=None) -> tuple:
 
 def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
              units: Sequence[int] | None = None, rate_hz: float | None = None, seed: int = 0,
-             effects: Sequence = (), record: str | None = None, fmt: str = "parquet",
+             effects: Sequence = (), record: str | None = None, fmt: str | None = None,
              noise_scale: float = 1.0, model=None,
              progress: Callable[[int, int, int], None] | None = None, overwrite: bool = False,
              scheduler=None, jobs: int = 1):
@@ -356,7 +356,11 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     cluster (module docstring; ``jobs`` workers for ``"local"``); without it, ``jobs > 1``
     worker processes (:class:`cluster.ProcessPool`), one unit per task; ``model`` is used only
     in this process (neither); all three run through the one executor
-    (:func:`engine_model.runtime.cluster.executor`)."""
+    (:func:`engine_model.runtime.cluster.executor`). ``fmt``: ``"parquet"`` or ``"h5"``;
+    None follows ``out``'s suffix (``.h5`` -> h5, else parquet) and one that contradicts it
+    is refused (:func:`engine_model.datasets.output_format`). ``seed`` must be an integer
+    >= 0 (:func:`engine_model.validation.check_seed`)."""
+    seed = check_seed(seed)
     p = get_preset(preset) if isinstance(preset, str) else preset
     check_effects(effects)
     specs = select_units(p, units)
@@ -365,6 +369,9 @@ def simulate(preset: str | Preset = "tiny", out: str | Path | None = None,
     meta = fleet_metadata(p, specs, rate, rec, seed, effects, noise_scale)
     check_scheduler(scheduler)
     if out is not None:
+        from engine_model.datasets import output_format
+
+        fmt = output_format(out, fmt)
         _check_out(Path(out), fmt, overwrite)  # before any work
     local_model = model if scheduler is None else None  # a model is used only here
 
