@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from calibration.adaptation import adapt, assess, load_adapted, write_adapted
+from calibration.adaptation.adapt import record_groups
 from calibration.adaptation.data import MODEL_ERROR, fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
@@ -215,6 +216,10 @@ def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candid
             assert oos.std_pct[int(c)][ch] == pytest.approx(
                 rec["std_pct_condition_out"]["after"][c][ch], rel=1e-3)
     assert abs(fit.chi2_per_sample() - rec["chi2_in_sample"]["after"]) < 1e-3
+    # the groups a record's candidates come from, every chosen candidate among them
+    names = {c.name for c in record_groups(doc, CHANNELS)}
+    assert set(rec["chosen"]) <= names
+    assert names <= {c.name for c in candidate_model.candidates}
     # refused: not an adapted model, a bad specification
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"format": "hyprog-adapted-model", "version": 1,

@@ -136,8 +136,20 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
 
 
+def record_groups(record: dict, channels) -> list:
+    """The candidate groups of a record's chosen candidates (:mod:`.groups`), for the
+    record's ``channels``, in the library's order."""
+    chosen = set(record["selection"]["chosen"])
+
+    def group_of(c) -> str:
+        return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
+
+    names = sorted({group_of(c) for c in build_groups(channels) if c.name in chosen})
+    return build_groups(channels, names) if names else []
+
+
 def assess(df: pd.DataFrame, record: dict, units=None, model=None,
-           source: str = "data") -> tuple[FleetFit, OutOfSample]:
+           source: str = "data", design=None) -> tuple[FleetFit, OutOfSample]:
     """An adapted model's record (:mod:`.artefact`) refitted to the early life of ``units`` of
     ``df`` with its own choices (channels, early cycles, model error, chosen candidates),
     started at its recorded values: the fit and the errors with each condition left out,
@@ -145,7 +157,8 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
     it gives the std that a record written before ``std_pct_condition_out`` existed lacks;
     on other engines of the same engine type, how the adaptation holds there. ``model``: a
     prebuilt :class:`~calibration.discrepancy.candidates.CandidateModel` of the record's
-    candidate groups (tests)."""
+    candidate groups (tests); ``design``: the engine design to build it on
+    (:func:`engine_model.physics.design.design_engine`; default the model's own)."""
     from calibration.discrepancy.candidates import CandidateModel
 
     info = record.get("data", {})
@@ -154,12 +167,8 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
                          info.get("early_cycles", EARLY_CYCLES), units, source=source,
                          model_error=info.get("model_error", MODEL_ERROR))
 
-    def group_of(c) -> str:
-        return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
-
-    names = sorted({group_of(c) for c in build_groups(data.channels) if c.name in chosen})
-    groups = build_groups(data.channels, names) if names else []
-    model = model or CandidateModel(groups)
+    groups = record_groups(record, data.channels)
+    model = model or CandidateModel(groups, design=design)
     value = {(p["candidate"], p["parameter"]): p["value"] for p in record["parameters"]}
     phi = np.zeros(model.n_phi)
     for c in groups:
