@@ -53,19 +53,40 @@ def on_bound(groups, chosen, fit) -> list[str]:
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def arguments(doc: str) -> argparse.ArgumentParser:
+    """The options every script on a recorded adaptation takes."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--data-dir", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/adaptation"))
     ap.add_argument("--record", type=Path,
                     default=Path("benchmarks/results/adaptation/fd002-adapted.json"))
     ap.add_argument("--results", type=Path, default=None)
-    a = ap.parse_args()
+    return ap
+
+
+def recorded(a) -> tuple[dict, object, object]:
+    """(the record, the FD002 table, its early-life fleet data as the record chose them)."""
     record = json.loads(a.record.read_text())
     info = record.get("data", {})
     df, _ = datasets.read_dataset(imported(a.data_dir, a.work, "FD002"))
     data, _ = fleet_data(df, tuple(record["channels"]), info.get("early_cycles", EARLY_CYCLES),
                          None, model_error=info.get("model_error", MODEL_ERROR))
+    return record, df, data
+
+
+def emit(lines: list[str], results: Path | None, name: str) -> None:
+    """Print the table and, with ``results``, write it there as ``name``."""
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if results:
+        results.mkdir(parents=True, exist_ok=True)
+        (results / name).write_text(text)
+
+
+def main() -> None:
+    a = arguments(__doc__).parse_args()
+    record, _, data = recorded(a)
+    info = record.get("data", {})
     groups = build_groups(data.channels)
     model = CandidateModel(groups)
     chosen_all = list(record["selection"]["chosen"])
@@ -90,11 +111,7 @@ def main() -> None:
     for step, chi2, n_par, n_bound, which, sec in rows:
         lines.append(f"| {step} | {chi2:.3f} | {n_par} | {n_bound} | "
                      f"{', '.join(which) or '-'} | {sec:.1f} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if a.results:
-        a.results.mkdir(parents=True, exist_ok=True)
-        (a.results / "bounds_along_path.md").write_text(text)
+    emit(lines, a.results, "bounds_along_path.md")
 
 
 if __name__ == "__main__":

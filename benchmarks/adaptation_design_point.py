@@ -25,24 +25,18 @@ Each design compiles its own model (a few minutes each).
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from adaptation import imported  # noqa: E402
-from adaptation_bounds import on_bound  # noqa: E402
+from adaptation_bounds import arguments, emit, on_bound, recorded  # noqa: E402
 
 from calibration.adaptation import assess  # noqa: E402
 from calibration.adaptation.adapt import record_groups  # noqa: E402
-from calibration.adaptation.data import MODEL_ERROR, fleet_data  # noqa: E402
 from calibration.adaptation.selection import mean_errors  # noqa: E402
-from calibration.measurement_noise import EARLY_CYCLES  # noqa: E402
-from engine_model import datasets  # noqa: E402
 from engine_model.physics.design import DesignSpec, design_engine  # noqa: E402
 
 
@@ -65,22 +59,13 @@ def worst(errors: dict) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data-dir", type=Path, required=True)
+    ap = arguments(__doc__)
     ap.add_argument("--spec", action="append", required=True)
-    ap.add_argument("--work", type=Path, default=Path("out/adaptation"))
-    ap.add_argument("--record", type=Path,
-                    default=Path("benchmarks/results/adaptation/fd002-adapted.json"))
-    ap.add_argument("--results", type=Path, default=None)
     a = ap.parse_args()
-    record = json.loads(a.record.read_text())
-    df, _ = datasets.read_dataset(imported(a.data_dir, a.work, "FD002"))
+    record, df, data = recorded(a)
     chosen = list(record["selection"]["chosen"])
     groups = record_groups(record, tuple(record["channels"]))
     level = {c.name: c for c in groups}
-    info = record.get("data", {})
-    data, _ = fleet_data(df, tuple(record["channels"]), info.get("early_cycles", EARLY_CYCLES),
-                         None, model_error=info.get("model_error", MODEL_ERROR))
     rows = []
     for spec in spec_grid(a.spec):
         t0 = time.perf_counter()
@@ -105,11 +90,7 @@ def main() -> None:
                      f"{chi2_out:.3f} | {w_in} | {w_out} | {levels['fan']:+.4f} | "
                      f"{levels['LPC']:+.4f} | {len(bound)} | {', '.join(bound) or '-'} | "
                      f"{sec:.0f} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if a.results:
-        a.results.mkdir(parents=True, exist_ok=True)
-        (a.results / "design_point.md").write_text(text)
+    emit(lines, a.results, "design_point.md")
 
 
 if __name__ == "__main__":
