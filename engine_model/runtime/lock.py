@@ -57,8 +57,10 @@ def acquire(path: str | os.PathLike) -> Path:
             lock.parent.mkdir(parents=True, exist_ok=True)
             created = _try_create(lock)
         except OSError as e:  # read-only, permission, a pseudo file system (/proc)
+            why = ("it accepts no new files" if isinstance(e, FileNotFoundError)
+                   and lock.parent.is_dir() else e.strerror or str(e))
             raise InputError(f"{path}: cannot write an output there ({lock.parent}:"
-                             f" {e.strerror or e})") from None
+                             f" {why})") from None
         if created:
             return lock
         who = read_lock(lock)
