@@ -34,6 +34,7 @@ from cli.main import app
 from engine_model import EngineModel, datasets
 from engine_model.physics.effects import parse_effect_spec
 from engine_model.simulator import fleet
+from engine_model.validation import InputError
 
 BLEED = 0.015
 SETUP = CalibrationSetup(drift=0.01)
@@ -319,3 +320,22 @@ def test_the_loop_walks_theta_by_the_flight_between_cycles_whatever_drift_per_sa
     np.testing.assert_allclose(by_time.tau_h, by_cycle.tau_h)
     flights = df.groupby("cycle")["t"].agg(lambda t: t.max() - t.min()).to_numpy() / 3600
     assert by_cycle.tau_h[0] == 0.0 and np.all(by_cycle.tau_h[1:] > 0.5 * flights[:-1])
+
+
+def test_compressor_only_effects_are_built_on_the_compressors_only():
+    """``map_slope`` and ``map_pressure_ratio`` exist for the fan, LPC and HPC: the loop tests
+    one instance per compressor (not the turbines, which their classes refuse), and the truth
+    model's effects carry the same instances."""
+    _, tested = build_candidates(("map_slope", "map_pressure_ratio"), ("T24", "P30"))
+    assert [c.name for c in tested] == [f"{n}_{c}" for n in ("map_slope", "map_pressure_ratio")
+                                        for c in ("fan", "LPC", "HPC")]
+    names = [e.name for e in steady_effects(("map_slope",))]
+    assert {"map_slope_fan", "map_slope_LPC", "map_slope_HPC"} <= set(names)
+    assert not any(n.startswith("map_slope_") and n[-3:] in ("HPT", "LPT") for n in names)
+
+
+def test_design_scaling_is_refused_as_a_candidate_of_the_loop():
+    """A constant map scaler is the health parameters themselves: θ per cycle would absorb
+    it, so the loop refuses it and names the command that fits it."""
+    with pytest.raises(InputError, match="design_scaling .*hyprog adapt"):
+        build_candidates(("design_scaling",), ("T24",))

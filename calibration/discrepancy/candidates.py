@@ -125,7 +125,26 @@ def check_names(names=None, what: str = "--candidates") -> tuple:
         if reg[n].series:
             raise InputError(f"{what}: {n} is a series effect (it acts on the time series, not "
                              "on the steady model); it cannot be score-tested")
+        if n in NOT_CANDIDATES:
+            raise InputError(f"{what}: {n} {NOT_CANDIDATES[n]}")
     return tested_names
+
+
+#: Registered steady effects the loop refuses to test, with the reason. ``design_scaling``
+#: is a constant efficiency and flow scaler of a component, the same thing as that
+#: component's health parameters: the loop's θ per cycle absorbs it entirely, so its score
+#: is zero by construction (:mod:`calibration.adaptation` fits it apart from θ, over a fleet).
+NOT_CANDIDATES = {
+    "design_scaling": "is the constant part of a map's adaptation, the same as the health "
+                      "parameters the loop estimates per cycle; fit it with `hyprog adapt`",
+}
+
+
+def components(cls) -> tuple:
+    """The components a per-component effect class is instantiated on: its ``MOVES``'s keys
+    where it declares them (``map_slope`` and ``map_pressure_ratio`` exist for the
+    compressors only), otherwise every component with health modifiers."""
+    return tuple(getattr(cls, "MOVES", None) or COMPONENT_MODS)
 
 
 def build_candidates(names=None, sensors=(), has_cycle=True):
@@ -152,7 +171,7 @@ def build_candidates(names=None, sensors=(), has_cycle=True):
         if issubclass(cls, SensorEffect):
             out += [_make(parse_effect_spec(f"{n}:channel={c}"), c) for c in sensors]
         elif "component" in cls.options:  # map adaptation: one instance per component
-            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in COMPONENT_MODS]
+            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in components(cls)]
         else:
             out.append(_make(parse_effect_spec(n)))
     k = 0
@@ -179,7 +198,7 @@ def steady_effects(names=None, values: dict | None = None) -> list:
         cls = reg[n]
         if issubclass(cls, SensorEffect) or any(q.kind == "context" for q in cls.params):
             continue
-        opts = ([f"component={c}" for c in COMPONENT_MODS] if "component" in cls.options
+        opts = ([f"component={c}" for c in components(cls)] if "component" in cls.options
                 else [""])
         for o in opts:
             inst = parse_effect_spec(n + (":" + o if o else ""))
