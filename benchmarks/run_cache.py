@@ -20,7 +20,13 @@ def read_runs(path: Path) -> list[dict]:
 
 
 def append_run(path: Path, run: dict) -> None:
-    """Add one run to ``path``."""
-    opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "at") as fh:
-        fh.write(json.dumps(run) + "\n")
+    """Add one run to ``path``. A gzip member's header carries no time (``mtime=0``), so the
+    same runs written again give the same bytes."""
+    line = json.dumps(run) + "\n"
+    if path.suffix != ".gz":
+        with open(path, "a") as fh:
+            fh.write(line)
+        return
+    with open(path, "ab") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as fh:
+        fh.write(line.encode())
+        fh.flush()  # (as gzip.open's text mode did: the same bytes but the time)
