@@ -47,7 +47,7 @@ class Envelope:
     alt_ft: tuple = (-1500.0, 45000.0)
     Mach: tuple = (0.0, 0.90)
     TRA: tuple = (15.0, 105.0)
-    T2: tuple = (360.0, 620.0)  # degR: ISA -45 K at 45,000 ft to ISA +40 K at Mach 0.6 SL
+    T2: tuple = (360.0, 620.0)  # degR: ISA -45 K at 45,000 ft to ISA +40 K at Mach 0.5 SL
     theta: tuple = (-0.15, 0.05)
 
 

@@ -356,3 +356,25 @@ def test_a_map_shape_the_fit_lacks_shows_as_held_out_errors_of_many_stds(candida
     assert worst_z(lacking.selection.after)[4] > 5.0
     rec = lacking.record()["selection"]["std_pct_condition_out"]
     assert set(rec["after"]) == set(range(1, 7)) == set(rec["before"])
+
+
+def test_a_fitted_bleed_schedule_negative_at_the_ceiling_is_refused_before_writing():
+    """The fit bounds ``f0`` and ``f_alt`` one by one; their combination is checked when the
+    effects are written, as the loader checks it: an unloadable model is never written."""
+    from types import SimpleNamespace
+
+    from calibration.adaptation.adapt import Adaptation
+
+    groups = build_groups(("T30",), ["customer_bleed"])
+    (c,) = groups
+
+    def effects(f0, f_alt):
+        phi = np.zeros(len(c.params))
+        phi[list(c.params).index("f0")], phi[list(c.params).index("f_alt")] = f0, f_alt
+        fit = SimpleNamespace(fit=SimpleNamespace(phi=phi), chosen=[c.name])
+        return Adaptation.effects(SimpleNamespace(selection=fit, groups=groups))
+
+    assert effects(0.0, 0.0046) == ["customer_bleed:f0=0,f_alt=0.0046"]
+    with pytest.raises(InputError, match="cannot be written: customer_bleed:f0=0.01,"
+                                         "f_alt=-0.005.*< 0"):
+        effects(0.01, -0.005)

@@ -104,6 +104,22 @@ def test_customer_bleed_magnitude_is_physical(effect_runs):
     assert np.all((dwf > 0.005) & (dwf < 0.05))
 
 
+def test_customer_bleed_schedule_starts_at_sea_level(model):
+    """The bleed fraction ``f0 + f_alt max(alt, 0)/10,000 ft``: below sea level the sea-level
+    fraction holds (so the FD002 adaptation's ``f0 = 0`` never adds air), above it the
+    schedule grows with altitude. ``p = (f0, f_alt)``."""
+    m = EngineModel(design=model.design, effects=[parse_effect_spec("customer_bleed")],
+                    compiled=False)
+    w = w_rows([(-1500, 0.0, 90), (0, 0.0, 90), (20000, 0.6, 90)])
+    flat, sched = m.evaluate(w, p=[0.01, 0.0]), m.evaluate(w, p=[0.01, 0.004])
+    for c in ("Wf", "T48", "P30"):
+        np.testing.assert_allclose(sched[c].iloc[:2], flat[c].iloc[:2], rtol=1e-12, err_msg=c)
+    assert sched["Wf"].iloc[2] > flat["Wf"].iloc[2] * 1.001  # 0.8 % more bleed at 20,000 ft
+    none = m.evaluate(w[:1], p=[0.0, 0.0])
+    below = m.evaluate(w[:1], p=[0.0, 0.0046])  # the adapted FD002 model's schedule
+    np.testing.assert_allclose(below["Wf"], none["Wf"], rtol=1e-12)
+
+
 def test_reynolds_grows_with_altitude(model):
     m = EngineModel(design=model.design, effects=[parse_effect_spec("reynolds")],
                     compiled=False)

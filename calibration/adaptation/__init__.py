@@ -5,11 +5,13 @@ missing. A model that is simply not the real engine is missing something *every*
 fleet shows, while health is each engine's own (manufacturing scatter when new, wear later).
 This package fits the two apart on many engines at once, and keeps what generalises:
 
+Each channel's noise per operating condition comes from the data
+(:mod:`calibration.measurement_noise`: within engines, early life, the resolution a channel is
+written to as a floor).
+
 ==============  ==========================================================================
 module          job
 ==============  ==========================================================================
-noise           each channel's noise per operating condition, from the data (within
-                engines, early life; the resolution a channel is written to as a floor)
 data            a fleet's early-life samples as arrays, each with its noise std
 groups          the candidates: design-point and speed-dependent map scaling per
                 component, bleed, off-take, Reynolds, intake loss, nozzle areas, sensor

@@ -12,6 +12,7 @@ import pandas as pd
 from engine_model.channels import THETA_NAMES
 from engine_model.datasets import hyprog_version
 from engine_model.datasets.fingerprint import rows_fingerprint
+from engine_model.physics.effects import EffectSpecError, parse_effect_spec
 from engine_model.validation import InputError
 
 from ..measurement_noise import EARLY_CYCLES
@@ -63,9 +64,19 @@ class Adaptation:
         return out
 
     def effects(self) -> list[str]:
-        """The chosen candidates as effect specifications at the fitted values."""
+        """The chosen candidates as effect specifications at the fitted values, each
+        checked as :func:`~calibration.adaptation.artefact.load_adapted` will check it. The
+        fit bounds every parameter on its own, not their combinations: a customer bleed whose
+        fitted schedule is negative at the ceiling (``f0 + 4.5 f_alt < 0``) is refused here,
+        with its values, rather than written into a model no command could load."""
         sel = self.selection
-        return [c.spec(sel.fit.phi[c.index]) for c in self.groups if c.name in sel.chosen]
+        specs = [c.spec(sel.fit.phi[c.index]) for c in self.groups if c.name in sel.chosen]
+        for s in specs:
+            try:
+                parse_effect_spec(s)
+            except EffectSpecError as exc:
+                raise InputError(f"the adapted model cannot be written: {s}: {exc}") from None
+        return specs
 
     def theta_summary(self, fit: FleetFit) -> dict:
         """Early-life health of the engines under ``fit``: mean and std across engines of

@@ -17,7 +17,8 @@ The negative log posterior (``e`` the whitened residual)::
 
     L = 1/2 |e|^2 + 1/2 sum_u |delta_u / s_theta|^2 + 1/2 |phi / s_phi|^2
 
-is minimised by Gauss-Newton with a Levenberg damping (Nocedal & Wright 2006, sec. 10.3),
+is minimised by Gauss-Newton with Levenberg-Marquardt damping (the damping scaled by the
+matrix's diagonal, Marquardt 1963; Nocedal & Wright 2006, sec. 10.3),
 steps projected onto the bounds (a shared parameter at a bound that the step pushes out is
 held there for that step). The normal equations are *bordered block-diagonal* (one small
 block per engine, a dense border for the shared parameters), solved by the Schur

@@ -8,9 +8,9 @@ entered or left out as a whole (a *group* of parameters):
 group                  what it adapts
 =====================  ====================================================================
 design_scaling_<c>     the component's efficiency and flow level (design-point scaling)
-map_scaling_<c>        their change with the component's corrected speed, linear and
-                       quadratic in ``n_corr - 1`` (condition-dependent scaling: Li &
-                       Pilidis 2010; multi-point adaptation: Tsoutsanis et al. 2015)
+map_scaling_<c>        their change with the component's corrected speed, linear and quadratic in
+                       ``n_corr - 1`` (condition-dependent scaling: Li & Pilidis 2010; multi-point
+                       adaptation: Tsoutsanis et al., Applied Energy 135, 2014)
 map_slope_<k>          the slope of a compressor's speed lines (``k``: fan, LPC, HPC): the
                        pressure ratio's change along a speed line, which moves between
                        conditions at the same corrected speed (the bypass nozzle chokes
@@ -31,7 +31,8 @@ for ``c`` in fan, LPC, HPC, HPT, LPT and every fitted channel ``ch``.
 Prior and bounds of every parameter: the prior std is the larger end of its *realistic*
 range (``Param.range``, e.g. 4 % bleed, +-3 % on a design-point scaler), the bounds its
 *valid* range (``Param.valid``), closed at the neutral value on a one-sided parameter (a
-bleed cannot be negative). A fit that lands on a bound says so (:mod:`.report`).
+bleed cannot be negative). A fit that lands on a bound says so
+(:meth:`.adapt.Adaptation.parameters`, ``at_bound``).
 """
 
 from __future__ import annotations

@@ -13,14 +13,16 @@ null_fit            the fit tested against: theta per flight cycle as a slow ran
                     bounded Gauss-Newton with exact Jacobians
 noise_check         the noise model per channel (successive differences), before thresholds
 drift_mle           the random-walk rate q by maximum marginal likelihood (no hand-set drift)
-score_test          efficient score statistics of every candidate at once, chi-bar-squared
+score_statistics    efficient score statistics of every candidate at once, chi-bar-squared
 max_stat            the family-wise critical value by sampling the scores' null N(0, C)
 confirm             joint bounded refit, likelihood ratio, held-out whole flights
 identifiability     projected signature, "absorbed by theta", "ambiguous: A or B", minimum
                     detectable size
 unknown             structure no candidate explains and the hint (sparse regression)
 loop                the iteration and the verdict
-report              Markdown + JSON + PNG, before and after
+normal_matrix       the bordered block-diagonal Gauss-Newton matrix over units and its solves
+synthetic           a simulated unit with an effect switched on (tests and benchmarks)
+discovery_report    Markdown + JSON + PNG, before and after
 ==================  =========================================================================
 
 Design decisions (what was chosen and why)

@@ -24,7 +24,7 @@ Parameters that are unidentified at the null (a *nuisance present only under the
 alternative*, Davies 1977), e.g. the Reynolds effect's ``flow_ratio`` (meaningless while the
 exponent ``n`` is 0), are held at their documented default and listed in
 :attr:`Candidate.fixed`. A parameter whose documented range starts (ends) at its neutral value
-is one-sided (``phi >= 0``): its test has a boundary null (:mod:`.score_test`).
+is one-sided (``phi >= 0``): its test has a boundary null (:mod:`.score_statistics`).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ flights.
 
 1. Refit ``(Theta, phi_accepted, phi_j)`` jointly (:func:`null_fit.fit`: bounded
    Gauss-Newton with exact Jacobians), warm-started at the null fit with ``phi_j`` at its
-   one-step estimate projected onto its cone (:mod:`.score_test`).
+   one-step estimate projected onto its cone (:mod:`.score_statistics`).
 2. Likelihood ratio ``LR = 2 (L_null - L_alt)``; under the null it has the same
    chi-bar-squared distribution as the score statistic (Silvapulle & Sen 2005, sec. 4.3), so its
    p-value uses the candidate's weights, and it must pass the family-wise critical p-value of

@@ -8,9 +8,10 @@ in information form)::
     -log p(y | q) = min_Theta [1/2 |e|^2 + 1/2 (Theta - mu)^T Lambda_q (Theta - mu)]
                     + 1/2 log det(J^T J + Lambda_q) - 1/2 log det(Lambda_q) + const
 
-summed over units (they share ``q``, not theta). It is minimised over ``log q`` (bounded
-scalar search, :func:`scipy.optimize.minimize_scalar`) and the fit is redone at the new ``q``
-(one round: the linearisation point moves little). This replaces a hand-set ``--drift``: on
+summed over units (they share ``q``, not theta). It is minimised over ``log q`` (bounded scalar
+search, :func:`scipy.optimize.minimize_scalar`) and the fit is redone at the new ``q``;
+:func:`estimate_drift` does this twice (the linearisation point moves little, so the second round
+changes ``q`` little) and returns the second round's ``q``. This replaces a hand-set ``--drift``: on
 the ``tiny`` fleet (10-cycle lives, fast wear) it gives q of about 0.003 per sqrt(hour) for the
 per-cycle model, three times the default 1e-3.
 
@@ -88,8 +89,8 @@ def drift_value(text) -> float | None:
 def estimate_drift(frames: list, setup: CalibrationSetup, model=None, source=None) -> float:
     """The maximum-likelihood ``q`` [per sqrt(hour)] of the units ``frames`` (one DataFrame
     each, hyprog names): the per-cycle fit of :mod:`.null_fit` (no candidate effect; warm
-    start ``coarse``), ``q`` at its linearisation, the fit redone at that ``q`` and ``q``
-    once more."""
+    start ``coarse``), then twice: ``q`` at the fit's linearisation and the fit redone at
+    that ``q``; the second ``q``."""
     from dataclasses import replace
 
     from .candidates import CandidateModel

@@ -1,7 +1,7 @@
 """Can the data tell a candidate apart: from theta, from the other candidates, and how large
 must it be to be seen.
 
-All from the efficient information of the screen (:mod:`.score_test`), no model runs:
+All from the efficient information of the screen (:mod:`.score_statistics`), no model runs:
 
 - **Projected signature.** ``S_ii`` is the squared norm of ``(I - P_N) J_i``, the part of the
   whitened signature of parameter ``i`` that theta (and the accepted effects) cannot explain;

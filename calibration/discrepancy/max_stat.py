@@ -1,7 +1,7 @@
 """Family-wise control over all candidates: the null distribution of the smallest p-value.
 
 Under the null every efficient score is Gaussian with the covariance the null fit already
-gives, ``s_T ~ N(0, S_TT)`` (:mod:`.score_test`), jointly over all candidates. Drawing from
+gives, ``s_T ~ N(0, S_TT)`` (:mod:`.score_statistics`), jointly over all candidates. Drawing from
 it (no model runs) gives, for every draw, every candidate's statistic and its chi-bar-squared
 p-value; the ``alpha`` quantile of the smallest p-value over the candidates is the
 family-wise critical value of the *min-P* (equivalently, max-statistic after calibration to a

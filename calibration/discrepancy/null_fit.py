@@ -16,7 +16,7 @@ residual ``e = R^-1/2 (y - G)``.
 
 Why a slow random walk and not a filter with loose process noise: a theta that may move
 freely at every sample soaks up any effect whose signature lies in the span of ``dG/dtheta``
-(the issue's step 1), so the residual would show nothing. With one theta per cycle and the
+so the residual would show nothing. With one theta per cycle and the
 drift prior, an effect that varies with the operating point *within* a flight cannot be
 absorbed.
 
@@ -24,10 +24,11 @@ The fit starts from an existing estimator (:mod:`calibration`'s ``mhe``, ``ukf``
 ``map_cycle``, public API, the cycle mean of its theta_hat) and is polished by Gauss-Newton
 on ``(Theta, phi_free)``: exact Jacobians from the model's sensitivities, the step of the
 bounded quadratic model (``scipy.optimize.lsq_linear`` on the Cholesky factor of the
-Gauss-Newton matrix: theta within the setup's bounds, one-sided effect parameters >= 0) and a
+Gauss-Newton matrix: theta within the setup's bounds, one-sided effect parameters on their
+side of the neutral value) and a
 backtracking line search on ``L`` (each trial a warm-started steady solve). The gradient and
 Gauss-Newton matrix at the solution, over *every* candidate parameter, are what the score
-tests use (:mod:`.score_test`).
+tests use (:mod:`.score_statistics`).
 """
 
 from __future__ import annotations
@@ -263,7 +264,10 @@ class FitState:
     """A converged fit: ``Theta`` (list of (C_u, k)), ``phi`` (global), ``free`` (indices of
     phi that were fitted), the linearization ``lin`` at the solution (with derivatives),
     ``grad`` / ``H`` over [Theta, every phi] (``H`` a :class:`NormalMatrix`), the objective
-    ``L``, and ``iterations``."""
+    ``L``, and ``iterations``. ``converged`` means the iteration stopped on its own: the
+    relative decrease of ``L`` fell below the tolerance, or no step along the Gauss-Newton
+    direction lowered ``L`` (the line search gave up, taken as the solution within the
+    noise), not that a gradient norm was checked."""
 
     Theta: list
     phi: np.ndarray

@@ -19,11 +19,12 @@ zero-mean, unit variance and unrelated to the operating point):
   same), and any model error that is smooth within a flight, the only kind the size would
   see there, raises the lag-1 autocorrelation, which is tested;
 
-each at ``alpha / n_tests`` (Bonferroni over channels and the tests run on them). A channel
-that fails any carries structure. The hint is a sparse regression of its residual on the
-basis: forward stepwise selection (up to :data:`MAX_TERMS` terms, each kept only if it
-lowers the BIC), reported as the terms it follows with their coefficients (noise units per
-basis standard deviation) and the share of the residual's variance they explain. The basis:
+each at ``alpha / n_tests`` (Bonferroni over channels and the tests run on them). A channel that
+fails any carries structure. The hint is a sparse regression of its residual on the basis: forward
+stepwise selection (up to :data:`MAX_TERMS` terms, each kept only if it lowers the BIC by more than
+10, "very strong" evidence on Kass & Raftery's scale), reported as the terms it follows with their
+coefficients (noise units per basis standard deviation) and the share of the residual's variance
+they explain. The basis:
 
 =================  ==========================================================
 term               meaning

@@ -22,7 +22,7 @@ from the last on (at or below the design point's ``v``, so take-off has no bleed
 :func:`components.smooth_step`: the valves shut above a corrected core speed ``b`` whatever the
 fan speed. ``L``: the low-speed limit, ``f_low + f_low_per_mach Mach`` below corrected fan speed
 ``low_speed_band[0]``, lifted (to 1, no limit) by ``low_speed_band[1]``; the minimum is
-C-infinity, exact outside ``limit_band``.
+:func:`.schedule.band_min` (C3), exact outside ``limit_band``.
 
 How the numbers were designed (as a real VBV schedule is: from a stability audit of the new
 engine, not from data). ``benchmarks/vbv_schedule_audit.py`` holds the valves at fixed openings
@@ -55,11 +55,11 @@ margin of 3 % and the largest opening ``cap`` the booster passes before it choke
   just above ground TRA 35. Without the limit ``F`` opens up to 0.33 there (high-Mach flight
   idle has the same ``v``) and the booster chokes.
 
-The numbers above are those of the audit the schedule was designed on, before the HPT
-cooling split and the nozzle discharge coefficients; re-run after them, the audit still finds
-no conflict in flight for ``(b, c) = (0.30, 0.075)``. Measured with the schedule (``--check``,
-``benchmarks/results/vbv_schedule_audit.md``): all 3,009 points converge; the lowest booster
-stall margin is 1.19 % (ground idle).
+The numbers above are those of the audit the schedule was designed on, before the HPT cooling split
+and the nozzle discharge coefficients; re-run after them, the audit still finds no conflict in
+flight for ``(fan_bias, mach_bias) = (0.30, 0.075)``. Measured with the schedule (``--check``,
+``benchmarks/results/vbv_schedule_audit.md``): all 3,009 points converge; the lowest booster stall
+margin is 1.19 % (ground idle).
 
 Every function works on floats, numpy arrays and CasADi symbols.
 """
@@ -123,7 +123,8 @@ class BleedValveSchedule:
 
     def fraction(self, n_hpc, n_fan, mach):
         """The opening (fraction of the booster exit flow): :meth:`unlimited_opening` limited at
-        low fan speed (a C-infinity minimum, exact outside ``limit_band``)."""
+        low fan speed (a C3 minimum, :func:`.schedule.band_min`, exact outside
+        ``limit_band``)."""
         return band_min(self.unlimited_opening(n_hpc, n_fan, mach),
                         self.low_speed_limit(n_fan, mach), self.limit_band)
 

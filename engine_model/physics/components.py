@@ -109,8 +109,12 @@ def burner_efficiency(theta_rel, eta_des):
     """Combustion efficiency versus relative loading ``theta_rel = theta/theta_des``.
 
     Efficiency falls as the loading parameter drops (low pressure, low inlet temperature:
-    altitude idle); Lefebvre & Ballal, *Gas Turbine Combustion*, 3rd ed., ch. 5, fig. 5.x shape,
-    fitted as 1 - eta = (1 - eta_des) (theta_des/theta)^0.5.
+    altitude idle), the trend of Lefebvre & Ballal, *Gas Turbine Combustion*, 3rd ed., ch. 5
+    (efficiency against the loading parameter). The form ``1 - eta = (1 - eta_des)
+    (theta_des/theta)^0.5`` and its exponent 0.5 are **assumed** (a class-typical shape, not
+    read from a figure and not fitted). It has no floor: the loss is ``theta_rel^-0.5`` times
+    the design loss (4.5 times at 5 % of the design loading), and the efficiency would reach
+    zero only at ``theta_rel = (1 - eta_des)^2``.
     """
     return 1.0 - (1.0 - eta_des) / ca.sqrt(theta_rel)
 

@@ -50,7 +50,8 @@ class DesignSpec:
     eta_hpt: float = 0.89
     dp_bypass: float = 0.010  # bypass duct dP/P
     dp_icd: float = 0.015  # LPC-HPC transition duct dP/P
-    dp_burner: float = 0.040  # burner cold loss dP/P
+    dp_burner: float = 0.040  # burner dP/P at design, scaled with corrected flow squared
+    #                           (the cold, friction loss; no hot Rayleigh loss is modelled)
     eta_burner: float = 0.9995
     eta_mech: float = 0.995  # both spools
     f_interstage: float = 0.5  # fraction of HPC enthalpy rise at the LPT-coolant port
@@ -76,8 +77,9 @@ class DesignSpec:
     vbv: BleedValveSchedule = field(default_factory=BleedValveSchedule)
     # TRA -> corrected fan speed, idle to maximum, with the limiters (schedule.py)
     throttle: ThrottleSchedule = field(default_factory=ThrottleSchedule)
-    # Compressor maps (maps.py). Class-typical shape parameters, none fitted to an operating
-    # point of the model or of C-MAPSS:
+    # Compressor maps (maps.py). Class-typical shape parameters, none fitted to C-MAPSS data
+    # (only the islands' peaks, (n_pk, phi_opt1) below, are made self-consistent with the
+    # model's own cruise point):
     # - phi_ch1: choke flow / design flow at 100 % speed: 5-6 % for the booster and HPC; 12 %
     #   for the fan, whose working line at the same corrected speed lies nearer choke at
     #   cruise (choked bypass nozzle) than at sea-level take-off (unchoked nozzle).

@@ -13,20 +13,20 @@ before a model variant is compiled.
 effect              physics
 ==================  =====================================================================
 customer_bleed      air taken from the HPC exit for the aircraft (cabin, anti-ice):
-                    ``W = (f0 + f_alt alt/10,000 ft) W25``; typical airliner ECS demand is
+                    ``W = (f0 + f_alt max(alt, 0)/10,000 ft) W25``; typical airliner ECS demand is
                     1-2 % of core flow at cruise (Walsh & Fletcher, *Gas Turbine
                     Performance*, 2nd ed., ch. 5).
 hp_offtake          shaft power taken from the HP spool by the accessory gearbox
                     (generators, hydraulic pumps), ``P`` [kW]; 100-250 kW for a twin of
                     this class.
-reynolds            Reynolds-number effect on the turbomachinery at altitude. The Reynolds
-                    number index of a component, ``RNI = (P_in/P_in_des)
-                    (T_in/T_in_des)^-1.2`` (Re ~ rho U L / mu with U ~ sqrt(T) at constant
-                    corrected speed and mu ~ T^0.7), scales the loss: ``(1 - eta) = (1 -
-                    eta_RNI=1) RNI^-n`` (Wassell, ASME J. Eng. Power 90, 1968; Walsh &
-                    Fletcher ch. 4 give n = 0.1-0.2). The efficiency modifier changes by
-                    ``-(1/eta_des - 1)(RNI^-n - 1)`` and the flow modifier by ``flow_ratio``
-                    times that.
+reynolds            Reynolds-number effect on the turbomachinery at altitude. The Reynolds number
+                    index of a component, ``RNI = (P_in/P_in_des) (T_in/T_in_des)^-1.2`` (Re ~ rho U
+                    L / mu with U ~ sqrt(T) at constant corrected speed and mu ~ T^0.7), scales the
+                    loss: ``(1 - eta) = (1 - eta_RNI=1) RNI^-n`` (Wassell, ASME J. Eng. Power 90,
+                    1968; Walsh & Fletcher ch. 4 give n = 0.1-0.2; the library's ``typical`` size,
+                    0.05, is a deliberately small one for detection studies, not a sourced value).
+                    The efficiency modifier changes by ``-(1/eta_des - 1)(RNI^-n - 1)`` and the flow
+                    modifier by ``flow_ratio`` times that.
 inlet_loss          an extra intake total-pressure loss (damage, ice, a poor intake lip):
                     ``P2 <- P2 (1 - dp - dp_ram Mach^2)``.
 nozzle_area         a change of the core (``dA8``) and bypass (``dA18``) nozzle throat areas,
@@ -100,8 +100,10 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
 - nozzle_area (a larger core nozzle): the LPT expands further, ``P50`` falls; ``T50`` falls.
 - map_scaling: at SLS full power the component runs at its design corrected speed (dn = 0)
   and nothing moves; at cruise (TRA 80, dn < 0) a positive ``eff_1`` lowers the component's
-  efficiency, so the burner runs hotter (``T48``, ``T50``, ``Wf`` up) for an HPC, HPT or
-  LPT (the instance's ``moves`` and ``signature`` are per component).
+  efficiency, so the burner runs hotter (``T48``, ``T50``, ``Wf`` up) for the HPC (the
+  HPT's shape moves every channel by less than 0.1 % at both points and the LPT's nothing
+  at cruise, so neither has a signature; the instance's ``moves`` and ``signature`` are per
+  component).
 - map_slope: at SLS full power the compressor runs at its design flow coefficient and nothing
   moves; at cruise the fan runs nearer choke (choked bypass nozzle, larger flow coefficient),
   where a flatter line keeps more pressure ratio (``P15``, ``P30`` up) and the core runs
@@ -112,9 +114,10 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
   lower head lowers ``P24`` and ``T24``; the HPC's pressure ratio is held by the turbines'
   flow capacities, so its lower head is made up by a faster core (``Nc`` up).
 - design_scaling: a lower efficiency or flow of a component (both at -1 %) at both points:
-  for a compressor or turbine the burner must run hotter (``Wf``, ``T50`` up); a less
-  efficient fan raises less pressure at the held fan speed (``P15``, ``P30`` down); the
-  signs per component are the instance's ``signature``.
+  for the booster, HPC, HPT and LPT the burner must run hotter (``Wf``, ``T50`` up); a less
+  efficient fan raises less pressure at the held fan speed (``P15``, ``P30`` down) and the
+  core, fed at a lower pressure, burns less (``Wf``, ``T50`` down); the signs per component
+  are the instance's ``signature``.
 - sensor_bias / sensor_drift: only the chosen channel moves; every other output is unchanged.
 """
 
@@ -134,7 +137,7 @@ COMPONENT_MODS = ("fan", "LPC", "HPC", "HPT", "LPT")
 class CustomerBleed(Effect):
     name = "customer_bleed"
     description = ("Customer (aircraft) bleed from the HPC exit, a fraction of HPC inlet flow "
-                   "that may follow a schedule in altitude.")
+                   "that may follow a schedule in altitude above sea level.")
     params = (
         Param("f0", "-", 0.0, "bleed fraction of W25 at sea level", 0.015, (0.0, 0.04),
               valid=(0.0, 0.10)),
@@ -146,9 +149,13 @@ class CustomerBleed(Effect):
                  "CRZ": {"Wf": +1, "T40": +1, "T48": +1, "T50": +1}}
 
     def __init__(self, **values):
-        """A specification whose fraction is negative somewhere between sea level and the
-        envelope's ceiling is refused (the model itself stays smooth in ``f0``, ``f_alt``:
-        a fit bounds ``f0`` at 0, and its result is checked here when loaded)."""
+        """The fraction is ``f0 + f_alt max(alt, 0) / 10,000 ft``: the schedule is one of
+        altitude above sea level, and below it (the envelope starts at -1,500 ft) the
+        sea-level fraction holds, as an aircraft's bleed schedule is written. So the fraction
+        is linear between sea level and the ceiling, and a specification whose fraction is
+        negative at either end (so somewhere in the envelope) is refused. The model stays
+        smooth in ``f0``, ``f_alt`` (the parameters a fit moves): a fit bounds ``f0`` at 0,
+        and its result is checked here when loaded."""
         super().__init__(**values)
         top = ENVELOPE.alt_ft[1] / 1.0e4
         worst = min(self.values["f0"], self.values["f0"] + self.values["f_alt"] * top)
@@ -161,6 +168,7 @@ class CustomerBleed(Effect):
         if hook != "W_customer_bleed":
             return value
         alt = ctx["w"][0]
+        alt = 0.5 * (alt + abs(alt))  # max(alt, 0): the schedule starts at sea level
         return value + (p["f0"] + p["f_alt"] * alt / 1.0e4) * ctx["W25"]
 
 
@@ -539,6 +547,9 @@ class Dynamics(Effect):
     #: and the controller's demand (the throttle); every other output but the temperatures
     #: follows the spools (speeds, every station pressure, every flow, and what is computed
     #: from them), so that they lag together and stay consistent (P40 < P30 at every sample).
+    #: ``Wf`` lags with them: the outputs are those of the steady point the spools are at, a
+    #: simplification. A real controller leads the spools with its fuel command (acceleration
+    #: and deceleration schedules, fuel first and speed after), which this effect does not model.
     NOT_LAGGED = ("P2", "PCNfR_dmd")
 
     @staticmethod

@@ -3,7 +3,10 @@
 Specific heat at constant pressure as a function of static temperature ``T`` [K] and fuel-air
 ratio ``far`` [-], from Walsh & Fletcher, *Gas Turbine Performance*, 2nd ed. (Blackwell, 2004),
 chapter 3, formula F3.23 (coefficients A0..A8 for dry air, B0..B7 for the products of kerosene
-combustion; valid 200-2000 K and far 0-0.05)::
+combustion; valid 200-2000 K and far 0-0.05; the ambient static temperature of a cold day
+at altitude, down to about 172 K at the envelope's corner (45,000 ft, ISA -45 K), is
+evaluated about 28 K below that range, where the polynomial is smooth and close to the
+constant cp of cold air (1,002.4 J/(kg K) at 172 K, 1,002.1 at 200 K), not checked)::
 
     cp = A0 + A1 Tz + ... + A8 Tz^8 + far/(1+far) * (B0 + B1 Tz + ... + B7 Tz^7)   [kJ/(kg K)]
     Tz = T / 1000
@@ -116,7 +119,7 @@ def t_from_phi(phi_target, far, T_guess, n_iter=N_NEWTON):
 def t_isentropic(T_in, far, pressure_ratio, n_iter=N_NEWTON):
     """Temperature after an isentropic change of total pressure by ``pressure_ratio``.
 
-    Starting guess from the mean-gamma perfect-gas relation at the inlet temperature.
+    Starting guess from the perfect-gas relation with gamma at the inlet temperature.
     """
     g = gamma(T_in, far)
     guess = T_in * pressure_ratio ** ((g - 1.0) / g)

@@ -1,10 +1,11 @@
 """Piecewise-cubic Hermite schedules that work on floats, numpy arrays and CasADi symbols.
 
 Controller schedules (TRA -> fan speed, core speed -> bleed-valve opening) are tables joined by
-cubic Hermite segments. With the slopes of Fritsch & Carlson (SIAM J. Numer. Anal. 17, 1980:
-the weighted harmonic mean of the neighbouring secants, zero where they change sign) the curve
-is monotone wherever the table is, cannot overshoot a knot, and is C1 - so the model built on it
-keeps exact, continuous Jacobians.
+cubic Hermite segments. With the slopes of Fritsch & Butland (SIAM J. Sci. Stat. Comput. 5, 1984:
+the weighted harmonic mean of the neighbouring secants, zero where they change sign; the PCHIP
+slopes) the curve meets Fritsch & Carlson's monotonicity conditions (SIAM J. Numer. Anal. 17, 1980),
+so it is monotone wherever the table is, cannot overshoot a knot, and is C1 - so the model built on
+it keeps exact, continuous Jacobians.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ def where(cond, a, b):
 def fritsch_carlson_slopes(t, y, first=0.0):
     """Knot slopes of the monotone interpolant through ``(t, y)`` (``t`` increasing).
 
-    Interior slopes: Fritsch & Carlson's weighted harmonic mean of the two secants (zero where
+    Interior slopes: Fritsch & Butland's weighted harmonic mean of the two secants (zero where
     they differ in sign or one is zero); the first slope ``first``, the last the last secant
     (a caller may change the end slopes)."""
     t = np.asarray(t, float)

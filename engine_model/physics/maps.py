@@ -52,7 +52,9 @@ work coefficient ``Dh / U^2`` - rather than in ``beta``::
    / mu``, where the head passes zero (PR = 1); from there the isentropic head falls on, its
    slope rising to ``mu`` island heads per map unit well below ``b_d`` (0.5 ``mu`` at
    ``b_d``, 0.95 ``mu`` at ``b_d - 1``), to negative values (``PR < 1``, the efficiency
-   ``Dh_is / Dh`` negative: the compressor dissipates more than its work). The flow is
+   ``Dh_is / Dh`` negative: the compressor dissipates more than its work). (These figures,
+   and the ones that follow, are those of the present design's ``mu = 3`` and ``lam = 1``,
+   the same for the three maps.) The flow is
    within 5e-5 of the choke flow from ``b_d`` down, so the continuation is the vertical
    choke end of the speed line extended downward; how ``b`` runs along a vertical line is a
    choice of parametrization, not a property of the map. Where the map was used before, the
@@ -100,6 +102,9 @@ of SAE ARP1420 and Walsh & Fletcher ch. 5; the other is at constant corrected fl
 Turbine (HPT, LPT)
 ------------------
 Flow capacity from Stodola's ellipse law (Cooke, ASME J. Eng. Gas Turbines Power 107, 1985),
+a law for multistage turbines; for the single-stage HPT it is an approximation (a choked
+nozzle-guide-vane row would hold its capacity nearly constant, where the ellipse lowers it by
+about 1.6 % at expansion ratio 4 and 7 % at 2.5 against the design's 5.57),
 efficiency from the blade-to-isentropic-velocity ratio ``nu = N / sqrt(dh_is)`` (Dixon & Hall,
 ch. 4), a parabola near the design value::
 
@@ -227,7 +232,8 @@ class CompressorMap:
         return ca.log(g / self.d_choke) / self.lam
 
     def on_map(self, beta) -> np.ndarray:
-        """Where a root is meaningful: from deep choke (``b_ch - 4``, one map unit below the
+        """Where a root is meaningful (figures for the design's ``mu = 3``, ``lam = 1``):
+        from deep choke (``b_ch - 4``, one map unit below the
         start of the continuation past PR = 1, where the isentropic head is -3 times the
         island's: a total-pressure loss no compressor runs at) to at most one map unit
         beyond the new-engine surge line at 20 % speed (the highest surge line). On the

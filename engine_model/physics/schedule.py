@@ -11,9 +11,9 @@ altitude. Below them the schedule falls to ground idle:
   its take-off thrust (Walsh & Fletcher, *Gas Turbine Performance*, 2nd ed., ch. 7.2 and 8.6:
   ground idle thrust 3-7 % of take-off; N1 at idle 20-25 % on CFM56/CF6-class engines).
 * between the knots (tra_idle, pct_idle), (60, 84.93), (100, 100) a monotone cubic Hermite
-  interpolant (Fritsch & Carlson, SIAM J. Numer. Anal. 17, 1980: slopes by the weighted
-  harmonic mean, so the curve cannot overshoot), continued linearly above TRA 100 with its
-  end slope.
+  interpolant (:mod:`.hermite`: Fritsch & Butland's weighted-harmonic-mean slopes, monotone by
+  Fritsch & Carlson's conditions, so the curve cannot overshoot), continued linearly above TRA 100
+  with its end slope.
 
 Limiters (a full-authority controller's min/max selection; Jaw & Mattingly, *Aircraft Engine
 Controls*, AIAA 2009, ch. 4 and 6; Walsh & Fletcher ch. 7.2 and 8):
@@ -23,10 +23,14 @@ Controls*, AIAA 2009, ch. 4 and 6; Walsh & Fletcher ch. 7.2 and 8):
 * N2 red line and T48 (EGT) limit: the fan speed is lowered until the physical core speed or
   T48 is at its limit;
 * minimum core speed: on the ground the engine idles on the fan schedule (ground idle); in
-  flight the controller holds at least ``n2_min_flight`` physical core speed (flight idle),
+  flight the controller holds at least ``n2_min_flight`` physical core speed (flight idle;
+  on the ground a lower floor, ``n2_min_ground``, below ground idle),
   which keeps the burner lit, the bleed pressure up and the fan from windmilling at altitude.
-  The ground/flight switch (weight on wheels in a real FADEC) is a smooth step: in flight
-  above Mach 0.15 or 2,000 ft, on the ground below Mach 0.05 and 500 ft.
+  The ground/flight switch (weight on wheels in a real FADEC) is a smooth (tanh) step
+  centred between Mach 0.05 and 0.15 and between 500 and 2,000 ft: each step is 0.018 at
+  the lower edge and 0.982 at the upper, so the flight weight is 0.036 at Mach 0.05 and
+  500 ft (ground idle 1.8 % of the way to flight idle) and 0.982 at Mach 0.15 or 2,000 ft;
+  it reaches 0.99 (:mod:`.bleed_schedule`'s "in flight") a little beyond those edges.
 
 The selection ``n = max(min(n_cmd, n_N2max, n_T48max), n_N2min)`` is written as a residual in
 the unknown fan speed (:meth:`ThrottleSchedule.controller_residual`): each limit contributes an
@@ -88,7 +92,7 @@ def band_max(a, b, band=CONTROL_BAND):
 
 
 def band_min(a, b, band=CONTROL_BAND):
-    """C-infinity minimum, exact outside ``|a - b| < band``."""
+    """C3 minimum (:func:`band_max` mirrored), exact outside ``|a - b| < band``."""
     return -band_max(-a, -b, band)
 
 
@@ -134,13 +138,15 @@ class ThrottleSchedule:
         return smooth_min(self.demand_pct(tra), n1_limit)
 
     def alt_flight_weight(self, alt):
-        """0 below ``alt_flight[0]``, 1 above ``alt_flight[1]`` [ft], smooth between."""
+        """The altitude step [ft]: ``(1 + tanh((alt - mid) / (quarter band))) / 2``, 0.018
+        at ``alt_flight[0]`` and 0.982 at ``alt_flight[1]``, tending to 0 and 1 beyond."""
         lo, hi = self.alt_flight
         return 0.5 * (1.0 + _tanh((alt - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
 
     def flight_weight(self, mach, alt):
-        """The ground/flight switch (weight on wheels): 0 on the ground, 1 in flight (above
-        ``mach_flight`` or ``alt_flight``), smooth between."""
+        """The ground/flight switch (weight on wheels): tends to 0 on the ground and to 1
+        in flight, ``1 - (1 - s_Mach)(1 - s_alt)`` with the two tanh steps (0.018 / 0.982 at
+        the edges of ``mach_flight`` and ``alt_flight``)."""
         lo, hi = self.mach_flight
         s_m = 0.5 * (1.0 + _tanh((mach - 0.5 * (lo + hi)) / (0.25 * (hi - lo))))
         return 1.0 - (1.0 - s_m) * (1.0 - self.alt_flight_weight(alt))

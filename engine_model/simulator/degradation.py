@@ -10,10 +10,10 @@ flights' severities normalised to mean 1, so harder missions wear faster)::
     g(u) = exp(u) - 1 - u                  (zero value and slope at the onset: a smooth onset)
 
 - Which parameters wear: by default all ten; a preset may restrict initial wear and normal
-  degradation to the failure modes' components (``ds02`` and ``tiny``: the paper's HPT
-  efficiency, LPT efficiency and LPT flow, as N-CMAPSS DS02 degrades only "the affected system
-  components", Arias Chao et al. 2022, sec. 4), so that the paper's three-parameter
-  calibration model is correctly specified.
+  degradation to the failure modes' components (``ds02`` and ``tiny``: the paper's HPT efficiency,
+  LPT efficiency and LPT flow, as N-CMAPSS DS02 degrades only "the affected system components",
+  Arias Chao et al. 2022, the paper in ``shared/reference``, sec. 4), so that the paper's
+  three-parameter calibration model is correctly specified.
 - ``theta_0``: initial wear, every wearing parameter ``-U(0, 1) x`` :data:`INITIAL_WEAR`
   (efficiencies and flows up to 0.3 %); it consumes about 0-15 % of the health index
   (engine-to-engine variability about 10 % of HI; C-MAPSS (Saxena et al., PHM 2008) draws its

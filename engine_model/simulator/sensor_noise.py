@@ -5,13 +5,13 @@ The noise is Gaussian, white, independent between channels and proportional to t
 signal-to-noise ratio of a pressure the same at 40,000 ft (a third of its sea-level value) as
 on the ground, as for a transducer whose accuracy is quoted in percent of reading.
 
-Standard deviations (:data:`SIGMA_REL`, fractions of the reading). They are set from the
-scatter of the C-MAPSS FD002 early-life means in ``shared/reference`` (one standard deviation,
-unit-to-unit wear plus sensor noise: T24 0.35 degR, T30 4-4.5 degR, T50 5-6 degR, P30
-0.4-0.6 psia, Nf 0.05-0.15 rpm, Nc 7-9 rpm), taking roughly half of each scatter as sensor
-noise, and for the channels C-MAPSS does not show, from the usual gas-path instrumentation
-classes (thermocouples in the hot section about 0.25 % of reading, pressure transducers about
-0.1 %, fuel flow meters about 0.4 %):
+Standard deviations (:data:`SIGMA_REL`, fractions of the reading). They are set from the scatter of
+the C-MAPSS FD002 early-life means in ``shared/reference`` (one standard deviation, unit-to-unit
+wear plus sensor noise: T24 0.35 degR, T30 4-4.5 degR, T50 5-6 degR, P30 0.4-0.6 psia, Nf 0.05-0.15
+rpm, Nc 7-9 rpm), taking roughly half of each scatter as sensor noise (Nf: about the whole of it,
+0.12 rpm), and for the channels C-MAPSS does not show, from the usual gas-path instrumentation
+classes (thermocouples in the hot section about 0.25 % of reading, pressure transducers about 0.1 %,
+fuel flow meters about 0.4 %):
 
 ========  ===========  ======================================
 channel   sigma_rel    at sea-level static TRA 100
@@ -21,7 +21,7 @@ Nf        5e-5         about 0.12 rpm
 Nc        5e-4         about 4.5 rpm
 T24       2e-4         about 0.13 degR
 T30       1.5e-3       about 2.4 degR
-T40       3e-3         about 8 degR (combustor exit, hard to measure)
+T40       3e-3         about 9 degR at design (combustor exit, hard to measure)
 T48       2.5e-3       about 5 degR
 T50       2e-3         about 2.8 degR
 P*        1e-3         e.g. 0.55 psia on P30, 0.015 psia on P2
