@@ -34,7 +34,12 @@ unit's first cycles, shrunk to 0 while that change is within three standard devi
 (:mod:`prognostics.flights`, causal; FD003 has two fault modes, HPC and fan, which θ̂'s
 change tells apart). Each run is one line of
 ``--work/runs.jsonl`` (resumed); the table goes to stdout and, with ``--results``, to
-``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``.
+``RESULTS/cmapss.md`` and ``RESULTS/cmapss_runs.csv``, with every line of the cache (not only
+the table's) in ``RESULTS/runs.jsonl.gz``. The committed files are the ``--report`` of the
+whole cache:
+
+    python benchmarks/cmapss.py --data-dir ../shared/data/cmapss --report \\
+        --results benchmarks/results/cmapss
 
 Every figure here is a cross-validation figure on **training** units, not a test-set figure;
 the published figures beside them are test-set figures on NASA's test files (same
@@ -45,9 +50,7 @@ last-cycle protocol, different units). If the folder holds ``test_FD00x.txt`` an
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -57,6 +60,8 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402
+from common import file_sha, imported, run_key  # noqa: E402
 from run_cache import append_run, read_runs  # noqa: E402
 
 #: Published last-cycle RMSE on NASA's test files (same protocol: targets capped at 125 or
@@ -75,8 +80,10 @@ MULTI_CONDITION = {"FD002", "FD004"}
 
 
 def hyprog(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "cli.main", *args, "--quiet"], check=True,
-                   stderr=subprocess.DEVNULL)
+    """``hyprog ARGS --quiet`` in the repository root (:func:`common.hyprog`: its stderr is
+    shown only when it fails). Paths are passed as they are: :func:`main` makes the options'
+    paths absolute, so that they mean the same in the child."""
+    common.hyprog(*args, quiet=True, capture=True)
 
 
 def noise_options(noise: str, model_error: float) -> tuple[list[str], str]:
@@ -91,10 +98,7 @@ def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "defau
                    model_error: float = 0.0) -> Path:
     """Import ``subset``'s training file into ``work`` (once) and calibrate it
     (:func:`calibrated`); the feature table's path."""
-    raw = work / subset.lower()
-    if not raw.exists():
-        hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--out",
-               str(raw), "--overwrite")
+    raw = imported(data_dir, work, subset, capture=True)
     return calibrated(raw, params, adapted, noise, model_error)
 
 
@@ -116,10 +120,6 @@ def calibrated(raw: Path, params: str = "default", adapted: Path | None = None,
         hyprog("calibrate", str(raw), "--out", str(feat), *extra)
         print(f"{raw.name}: calibrated in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return feat
-
-
-def file_sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def test_files(data_dir: Path, subset: str) -> tuple[Path, Path] | None:
@@ -188,10 +188,6 @@ def settings_label(overrides: dict) -> str:
     one input set under different settings are summarised apart."""
     return " [" + ", ".join(f"{k}={v}" for k, v in sorted(overrides.items())) + "]" \
         if overrides else ""
-
-
-def run_key(body: dict) -> str:
-    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def train_and_score(df, meta, cfg, held) -> dict:
@@ -321,6 +317,10 @@ def main(argv=None) -> int:
                     help="once the configuration is chosen: train on every training unit and "
                     "score NASA's test files (test_FD00x.txt, RUL_FD00x.txt), when present")
     args = ap.parse_args(argv)
+    # (hyprog runs in the repository root: the paths it is given must not be relative)
+    args.data_dir, args.work = args.data_dir.resolve(), args.work.resolve()
+    if args.model_effects is not None:
+        args.model_effects = args.model_effects.resolve()
     if args.models is None:
         cached = read_runs(args.work / "runs.jsonl") if args.report else []
         args.models = ",".join(dict.fromkeys(r["model"] for r in cached
@@ -446,10 +446,18 @@ def main(argv=None) -> int:
                 "best_epoch", "epochs_run", "batch_size", "patience", "columns", "settings"]
         nets = runs[runs["kind"] == "run"]
         nets[cols].to_csv(args.results / "cmapss_runs.csv", index=False, float_format="%.4f")
-        kept = args.results / "runs.jsonl.gz"  # the table's cache lines (gunzip to --work/
-        kept.unlink(missing_ok=True)            # runs.jsonl to resume from them)
-        for key in dict.fromkeys(runs["key"]):
-            append_run(kept, done[key])
+        # every line of the cache, not only the table's rows: a table of some of the runs
+        # (--models, --subsets, a training run without --report) keeps the others in the
+        # committed cache (gunzip it to --work/runs.jsonl to resume from it)
+        done.update({r["key"]: r for r in read_runs(cache)})  # a --reverse process's too
+        kept = args.results / "runs.jsonl.gz"
+        kept.unlink(missing_ok=True)
+        for rec in done.values():
+            append_run(kept, rec)
+        if not args.report:
+            print(f"{args.results / 'cmapss.md'} holds this run's table only; the committed "
+                  "table is that of every cached run: regenerate it with --report",
+                  file=sys.stderr)
     return 0
 
 
