@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -45,6 +44,8 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's packages
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import file_sha, hyprog, imported  # noqa: E402
 
 #: The five health parameters FD001's eight sensors observe together (a sixth, LPT flow, is
 #: reported unobservable by ``hyprog calibrate``).
@@ -53,33 +54,24 @@ EARLY = 20
 LATE = 10
 
 
-def hyprog(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "cli.main", *args, "--quiet"], check=True)
-
-
-def imported(data_dir: Path, work: Path, subset: str) -> Path:
-    raw = work / subset.lower()
-    if not raw.exists():
-        hyprog("data", "import-cmapss", str(data_dir / f"train_{subset}.txt"), "--out",
-               str(raw), "--overwrite")
-    return raw
-
-
 def calibrated(raw: Path, work: Path, tag: str, params=None, adapted: Path | None = None,
                units: str | None = None, noise: tuple = ()) -> Path:
     """``raw`` calibrated into ``work`` (once) with the UKF, ``params``, the adapted model,
     ``units`` and ``noise`` (``hyprog calibrate``'s ``--noise`` / ``--model-error``
-    options, which name the folder too)."""
-    out = work / (f"{raw.name}-{tag}" + "".join(f"-{a.lstrip('-')}" for a in noise))
+    options, which name the folder too, as do the first 8 hex digits of the adapted model's
+    SHA-256: a folder calibrated with another adapted model is not reused)."""
+    out = work / (f"{raw.name}-{tag}"
+                  + ("" if adapted is None else f"-{file_sha(adapted)[:8]}")
+                  + "".join(f"-{a.lstrip('-')}" for a in noise))
     if not out.exists():
-        args = ["calibrate", str(raw), "--out", str(out), *noise]
+        args = ["calibrate", raw, "--out", out, *noise]
         if params:
             args += ["--params", ",".join(params)]
         if adapted is not None:
-            args += ["--model-effects", str(adapted)]
+            args += ["--model-effects", adapted]
         if units:
             args += ["--units", units]
-        hyprog(*args)
+        hyprog(*args, quiet=True)
     return out
 
 
@@ -244,7 +236,7 @@ def main(argv=None) -> int:
     adapted = args.work / "fd002-adapted.json"
     if not adapted.exists():
         t0 = time.perf_counter()
-        hyprog("adapt", str(fd002), "--out", str(adapted))
+        hyprog("adapt", fd002, "--out", adapted, quiet=True)
         print(f"adapted in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     rec = json.loads(adapted.read_text())
     report += ["## 1. The adaptation (FD002, every engine, cycles 1-20)", "",
@@ -296,9 +288,9 @@ def main(argv=None) -> int:
         write_parquet(df[df["cycle"] <= 40].reset_index(drop=True), first40, meta)
     for model, path in (("unadapted", None), ("adapted", adapted)):
         out = args.work / f"discover-{model}"
-        extra = [] if path is None else ["--model-effects", str(path)]
+        extra = [] if path is None else ["--model-effects", path]
         t0 = time.perf_counter()
-        hyprog("discover", str(first40), "--out", str(out), "--overwrite", *extra, *noise)
+        hyprog("discover", first40, "--out", out, "--overwrite", *extra, *noise, quiet=True)
         wall = time.perf_counter() - t0
         d = json.loads((out / "discover.json").read_text())
         added = ", ".join(f["spec"] for f in d["found"]) or "-"

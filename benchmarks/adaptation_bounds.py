@@ -24,33 +24,24 @@ import json
 import sys
 import time
 from pathlib import Path
-
-import numpy as np
+from types import SimpleNamespace
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from adaptation import imported  # noqa: E402
+from common import imported  # noqa: E402
 
-from calibration.adaptation.data import MODEL_ERROR, fleet_data  # noqa: E402
-from calibration.adaptation.fleet_fit import Shared, fit_fleet  # noqa: E402
-from calibration.adaptation.groups import LEVEL_GROUP, build_groups  # noqa: E402
-from calibration.adaptation.selection import shared_of  # noqa: E402
-from calibration.discrepancy.candidates import CandidateModel  # noqa: E402
-from calibration.measurement_noise import EARLY_CYCLES  # noqa: E402
-from engine_model import datasets  # noqa: E402
+# (the project's modules are imported where they are used: ``--help`` answers at once)
 
 
 def on_bound(groups, chosen, fit) -> list[str]:
-    """``candidate.parameter=value`` of every chosen parameter on a bound of its valid range."""
-    out = []
-    for c in groups:
-        if c.name not in chosen:
-            continue
-        for j, q in enumerate(c.params):
-            v = float(fit.phi[c.index[j]])
-            lo, hi = (float(x) for x in c.valid[j])
-            if np.isclose(v, lo) or np.isclose(v, hi):
-                out.append(f"{c.name}.{q}={v:+.3g}")
-    return out
+    """``candidate.parameter=value`` of every chosen parameter on a bound of its valid range:
+    :meth:`calibration.adaptation.adapt.Adaptation.parameters`'s list (its ``at_bound``
+    test, the one ``hyprog adapt``'s record carries) of ``fit`` with ``chosen`` among
+    ``groups``."""
+    from calibration.adaptation.adapt import Adaptation
+
+    view = SimpleNamespace(selection=SimpleNamespace(fit=fit, chosen=chosen), groups=groups)
+    return [f"{p['candidate']}.{p['parameter']}={p['value']:+.3g}"
+            for p in Adaptation.parameters(view) if p["at_bound"]]
 
 
 def arguments(doc: str) -> argparse.ArgumentParser:
@@ -66,6 +57,10 @@ def arguments(doc: str) -> argparse.ArgumentParser:
 
 def recorded(a) -> tuple[dict, object, object]:
     """(the record, the FD002 table, its early-life fleet data as the record chose them)."""
+    from calibration.adaptation.data import MODEL_ERROR, fleet_data
+    from calibration.measurement_noise import EARLY_CYCLES
+    from engine_model import datasets
+
     record = json.loads(a.record.read_text())
     info = record.get("data", {})
     df, _ = datasets.read_dataset(imported(a.data_dir, a.work, "FD002"))
@@ -85,6 +80,12 @@ def emit(lines: list[str], results: Path | None, name: str) -> None:
 
 def main() -> None:
     a = arguments(__doc__).parse_args()
+    from calibration.adaptation.fleet_fit import Shared, fit_fleet
+    from calibration.adaptation.groups import LEVEL_GROUP, build_groups
+    from calibration.adaptation.selection import shared_of
+    from calibration.discrepancy.candidates import CandidateModel
+    from calibration.measurement_noise import EARLY_CYCLES
+
     record, _, data = recorded(a)
     info = record.get("data", {})
     groups = build_groups(data.channels)

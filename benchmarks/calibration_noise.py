@@ -31,7 +31,6 @@ the RUL only to find the last 10 cycles; the settings that
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -41,20 +40,13 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout, not whichever tree is installed
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import imported  # noqa: E402
 
 #: (``--noise``, ``--model-error``) settings compared.
 SETTINGS = (("model", 0.0), ("data", 0.0), ("model", 0.003), ("data", 0.001), ("data", 0.003),
             ("data", 0.005), ("data", 0.01), ("data", 0.015), ("data", "consistent"))
 EARLY, LATE = 20, 10
-
-
-def imported(data_dir: Path, work: Path, subset: str) -> Path:
-    raw = work / subset.lower()
-    if not raw.exists():
-        subprocess.run([sys.executable, "-m", "cli.main", "data", "import-cmapss",
-                        str(data_dir / f"train_{subset}.txt"), "--out", str(raw),
-                        "--overwrite", "--quiet"], check=True)
-    return raw
 
 
 def measure(raw: Path, noise: str, model_error: float | str,
