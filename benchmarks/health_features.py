@@ -1,7 +1,7 @@
 """Physics features that generalise (issue 30), on the committed ``ds02`` fleet.
 
     OMP_NUM_THREADS=2 python benchmarks/health_features.py \\
-        [--features out/ds02-features] [--results benchmarks/results/health]
+        [--features out/ds02-features] [--work out/health] [--results DIR]
 
 The fleet and its calibration are the paper experiment's (``benchmarks/paper_experiment.py``,
 steps 1-2: ``hyprog simulate --preset ds02 --rate 0.1 --seed 0``, ``hyprog calibrate --method
@@ -24,18 +24,19 @@ ukf``); they are built here when ``--features`` does not exist.
    and after onset, RUL <= 30), at the last cycle, the prediction horizon, and test unit 15
    after onset (the unit that mixes the two failure modes). The floors beside them.
 
-Every run is cached in ``out/health/runs.jsonl`` (keyed by the data's fingerprint, the stage,
-the units and the resolved configuration), so an interrupted benchmark resumes. The table goes
-to ``--results`` (``health.md``, ``runs.csv``, ``runs.jsonl.gz``).
+Every run is cached in ``--work``/``runs.jsonl`` (default ``out/health``; keyed by the data's
+fingerprint, the stage, the units and the resolved configuration), so an interrupted benchmark
+resumes. The table goes to ``--results`` (``health.md``, ``runs.csv``, ``runs.jsonl.gz``: the
+cache, gzipped), by default ``--work`` itself; the committed files are written only when asked,
+``--results benchmarks/results/health``. ``--report`` writes them from the cache without
+training (from the committed cache: ``mkdir -p out/health && zcat
+benchmarks/results/health/runs.jsonl.gz > out/health/runs.jsonl`` first).
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -47,17 +48,11 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import hyprog, run_key  # noqa: E402
 from run_cache import append_run, read_runs  # noqa: E402
 
-from engine_model.datasets.dispatch import read_dataset  # noqa: E402
-from engine_model.datasets.fingerprint import table_fingerprint  # noqa: E402
-from prognostics.cross_validation import unit_folds  # noqa: E402
-from prognostics.ensemble import fit  # noqa: E402
-from prognostics.flights import to_samples  # noqa: E402
-from prognostics.floors import FLOORS, floor_predictions  # noqa: E402
-from prognostics.metrics import evaluate_predictions  # noqa: E402
-from prognostics.train_config import TrainConfig  # noqa: E402
-from prognostics.training import flight_frame  # noqa: E402
+# (the project's modules, torch among them, are imported where they are used, so that
+# ``--help`` answers at once)
 
 #: (model, inputs, window); "truth" inputs (true θ) are an ablation, never chosen
 CANDIDATES = (
@@ -76,29 +71,24 @@ CANDIDATES = (
 TRUTH_INPUTS = ("health_true",)
 FOLDS, FOLD_SEED = 3, 0
 UNIT_15 = 15
-
-
-def hyprog(*args: str) -> None:
-    cmd = [sys.executable, "-c", "from cli.main import app; app()", *args]
-    print(f"[{time.strftime('%H:%M:%S')}] hyprog {' '.join(args)}", flush=True)
-    subprocess.run(cmd, cwd=ROOT, check=True)
+#: hex digits of a run's cache key (:func:`common.run_key`; ``health_study.py`` keys alike)
+KEY_LENGTH = 20
 
 
 def build_features(features: Path) -> None:
     fleet = features.parent / "ds02"
     if not fleet.exists():
         hyprog("simulate", "--preset", "ds02", "--rate", "0.1", "--seed", "0", "--out",
-               str(fleet))
-    hyprog("calibrate", str(fleet), "--method", "ukf", "--jobs", "2", "--out", str(features))
-
-
-def key_of(body: dict) -> str:
-    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:20]
+               fleet, announce=True)
+    hyprog("calibrate", fleet, "--method", "ukf", "--jobs", "2", "--out", features,
+           announce=True)
 
 
 def scores(pred: pd.DataFrame) -> dict:
     """RMSE overall and by phase, last cycle, horizon, accuracy over life (α-λ, relative
     accuracy), error by true RUL, unit 15 after onset."""
+    from prognostics.metrics import evaluate_predictions
+
     m = evaluate_predictions(pred)
     out = {"rmse": m["samples"]["overall"]["rmse"], "score": m["samples"]["overall"]["score"],
            "last_rmse": m["last"]["overall"]["rmse"], "horizon": m["horizon"]["mean"],
@@ -118,6 +108,9 @@ def scores(pred: pd.DataFrame) -> dict:
 def train_predict(flights, meta, cfg, seeds, units, evaluate_units, samples) -> dict:
     """Train one model per seed on ``units`` (all development units when None), predict the
     flights of ``evaluate_units``; per-seed scores and the seeds' mean prediction's."""
+    from prognostics.ensemble import fit
+    from prognostics.flights import to_samples
+
     t0 = time.perf_counter()
     ev = flights[flights["unit"].isin(evaluate_units)]
     preds, per_seed = [], []
@@ -138,11 +131,21 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--features", type=Path, default=ROOT / "out" / "ds02-features")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "health")
-    ap.add_argument("--results", type=Path, default=ROOT / "benchmarks" / "results" / "health")
+    ap.add_argument("--results", type=Path, default=None,
+                    help="where the tables go (default: --work; the committed ones: "
+                    "benchmarks/results/health)")
     ap.add_argument("--cv-seeds", default="0,1,2")
     ap.add_argument("--test-seeds", default="0,1,2,3,4")
     ap.add_argument("--report", action="store_true", help="write the tables from the cache")
     a = ap.parse_args(argv)
+    from engine_model.datasets.dispatch import read_dataset
+    from engine_model.datasets.fingerprint import table_fingerprint
+    from prognostics.cross_validation import unit_folds
+    from prognostics.flights import to_samples
+    from prognostics.floors import FLOORS, floor_predictions
+    from prognostics.train_config import TrainConfig
+    from prognostics.training import flight_frame
+
     a.work.mkdir(parents=True, exist_ok=True)
     cache = a.work / "runs.jsonl"
     if not a.report:
@@ -163,7 +166,7 @@ def main(argv=None) -> int:
             held_fl = flights[flights["unit"].isin(held)]
             samples = df[df["unit"].isin(held)]
             body = {"data": fp, "stage": stage, "fold": k, "floors": list(FLOORS)}
-            key = key_of(body)
+            key = run_key(body, KEY_LENGTH)
             if key not in done:
                 rec = {"key": key, "kind": "floors", "stage": stage, "fold": k,
                        "held": [int(u) for u in held],
@@ -175,7 +178,7 @@ def main(argv=None) -> int:
                 cfg = TrainConfig(model=model, inputs=inputs, window=window, device="cpu")
                 body = {"data": fp, "stage": stage, "fold": k, "units": list(train_units),
                         "seeds": seeds, "config": cfg.to_dict()}
-                key = key_of(body)
+                key = run_key(body, KEY_LENGTH)
                 if key in done:
                     continue
                 units = None if stage == "test" else train_units
@@ -188,7 +191,7 @@ def main(argv=None) -> int:
                 print(f"[{time.strftime('%H:%M:%S')}] {stage} fold {k} {model} {inputs} "
                       f"w{window}: RMSE {res['ensemble']['rmse']:.2f} "
                       f"({res['seconds']:.0f} s)", flush=True)
-    report(read_runs(cache), a.results, cache)
+    report(read_runs(cache), a.work if a.results is None else a.results, cache)
     return 0
 
 
@@ -198,6 +201,8 @@ def _fmt(x, nd=2) -> str:
 
 def report(runs: list[dict], results: Path, cache: Path) -> None:
     """The choice (CV) and the test table; Markdown, CSV and the cache to ``results``."""
+    from prognostics.floors import FLOORS
+
     cv = [r for r in runs if r["stage"] == "cv"]
     test = [r for r in runs if r["stage"] == "test"]
     rows = []
@@ -269,9 +274,10 @@ def report(runs: list[dict], results: Path, cache: Path) -> None:
     if cache.exists():
         import gzip
 
-        (results / "runs.jsonl.gz").write_bytes(gzip.compress(cache.read_bytes()))
+        (results / "runs.jsonl.gz").write_bytes(gzip.compress(cache.read_bytes(), mtime=0))
     print("\n".join(lines))
-    shutil.copy2(results / "health.md", cache.parent / "health.md")
+    if results.resolve() != cache.parent.resolve():
+        shutil.copy2(results / "health.md", cache.parent / "health.md")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The many-fleet study of issue 30: does physics help, by how much, and with how many units?
 
-    OMP_NUM_THREADS=2 nohup python benchmarks/health_study.py --fleets 0-9 \\
-        > out/study/study.log 2>&1 &
+    mkdir -p out/study && OMP_NUM_THREADS=2 nohup python benchmarks/health_study.py \\
+        --fleets 0-9 [--results DIR] > out/study/study.log 2>&1 &
 
 One ``ds02``-like fleet per seed (``hyprog simulate --preset ds02-study --seed S``: 24
 development and 6 test units, end of life and onset drawn per seed), calibrated as the paper
@@ -23,7 +23,10 @@ Report: per ``n``, the mean over fleets of each predictor's test RMSE, and the h
 data-driven difference per fleet with its 95 % confidence interval over fleets (Student t);
 the hybrid minus each floor the same way (what a network adds to a lookup with no network);
 the curve of the hybrid-minus-data-driven difference against ``n`` (``study.png``).
-``--report`` without a cache rewrites the tables from the committed ``study_runs.csv``.
+The tables and the figure go to ``--results`` (default: ``--work``, ``out/study``); the
+committed ones are written only when asked, ``--results benchmarks/results/health_study``.
+``--report`` trains nothing; without a cache it rewrites the tables from the committed
+``benchmarks/results/health_study/study_runs.csv``.
 Every run is cached in ``--work``/``runs.jsonl`` (fleet, n, predictor, data fingerprint); an
 interrupted study resumes, and ``--fleets`` / ``--sizes`` pick what runs. ``--rate`` (default
 0.05 Hz, half the paper experiment's, to halve the calibration) is the sampling rate of the
@@ -43,15 +46,14 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from health_features import hyprog, key_of, scores, train_predict  # noqa: E402
+from common import hyprog, parse_range, run_key  # noqa: E402
+from health_features import KEY_LENGTH, scores, train_predict  # noqa: E402
 from run_cache import append_run, read_runs  # noqa: E402
 
-from engine_model.datasets.dispatch import read_dataset  # noqa: E402
-from engine_model.datasets.fingerprint import table_fingerprint  # noqa: E402
-from prognostics.flights import to_samples  # noqa: E402
-from prognostics.floors import FLOORS, floor_predictions  # noqa: E402
-from prognostics.train_config import TrainConfig  # noqa: E402
-from prognostics.training import flight_frame  # noqa: E402
+# (the project's modules are imported where they are used: ``--help`` answers at once)
+
+#: the committed tables, read by ``--report`` when there is no cache
+COMMITTED = ROOT / "benchmarks" / "results" / "health_study"
 
 SIZES = (3, 6, 12, 24)
 PREDICTORS = {"data-driven": ("tcn", "data-driven", 20), "physics": ("tcn", "physics", 20),
@@ -60,24 +62,24 @@ SEEDS = (0, 1, 2)
 HYBRIDS = ("physics", "health")
 
 
-def parse_range(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return out
-
-
 def fleet_features(work: Path, seed: int, rate: float) -> Path:
     fleet, features = work / f"fleet-{seed}", work / f"fleet-{seed}-features"
     if not fleet.exists():
         hyprog("simulate", "--preset", "ds02-study", "--rate", str(rate), "--seed", str(seed),
-               "--out", str(fleet))
-    hyprog("calibrate", str(fleet), "--method", "ukf", "--jobs", "2", "--out", str(features))
+               "--out", fleet, announce=True)
+    hyprog("calibrate", fleet, "--method", "ukf", "--jobs", "2", "--out", features,
+           announce=True)
     return features
 
 
 def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict) -> None:
+    from engine_model.datasets.dispatch import read_dataset
+    from engine_model.datasets.fingerprint import table_fingerprint
+    from prognostics.flights import to_samples
+    from prognostics.floors import FLOORS, floor_predictions
+    from prognostics.train_config import TrainConfig
+    from prognostics.training import flight_frame
+
     df, meta = read_dataset(fleet_features(work, seed, rate))
     fp = table_fingerprint(df, meta)
     flights = flight_frame(df)
@@ -87,7 +89,7 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
     test_fl = flights[flights["unit"].isin(test)]
     for n in sizes:
         units = sorted(order[:n])
-        key = key_of({"data": fp, "n": n, "floors": list(FLOORS)})
+        key = run_key({"data": fp, "n": n, "floors": list(FLOORS)}, KEY_LENGTH)
         if key not in done:
             fl = floor_predictions(flights[flights["unit"].isin(units)], test_fl)
             rec = {"key": key, "kind": "floors", "fleet": seed, "n": n, "units": units,
@@ -96,8 +98,8 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
             done[key] = rec
         for name, (model, inputs, window) in PREDICTORS.items():
             cfg = TrainConfig(model=model, inputs=inputs, window=window, device="cpu")
-            key = key_of({"data": fp, "n": n, "units": units, "seeds": list(SEEDS),
-                          "config": cfg.to_dict()})
+            key = run_key({"data": fp, "n": n, "units": units, "seeds": list(SEEDS),
+                           "config": cfg.to_dict()}, KEY_LENGTH)
             if key in done:
                 continue
             res = train_predict(flights, meta, cfg, SEEDS, units, test, samples)
@@ -229,24 +231,26 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     ap.add_argument("--rate", type=float, default=0.05)
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "study")
-    ap.add_argument("--results", type=Path,
-                    default=ROOT / "benchmarks" / "results" / "health_study")
+    ap.add_argument("--results", type=Path, default=None,
+                    help="where the tables and the figure go (default: --work; the "
+                    "committed ones: benchmarks/results/health_study)")
     ap.add_argument("--report", action="store_true", help="write the tables from the cache")
     a = ap.parse_args(argv)
     a.work.mkdir(parents=True, exist_ok=True)
+    results = a.work if a.results is None else a.results
     cache = a.work / "runs.jsonl"
     if not a.report:
         done = {r["key"]: r for r in read_runs(cache)}
         sizes = [int(s) for s in a.sizes.split(",")]
         for seed in parse_range(a.fleets):
             run_fleet(a.work, seed, a.rate, sizes, cache, done)
-            print(report(runs_table(read_runs(cache)), a.results), flush=True)
+            print(report(runs_table(read_runs(cache)), results), flush=True)
     t = runs_table(read_runs(cache))
-    committed = a.results / "study_runs.csv"
+    committed = COMMITTED / "study_runs.csv"
     if t.empty and a.report and committed.is_file():  # no cache here: the committed table
         print(f"no runs in {cache}: the tables from {committed}", file=sys.stderr)
         t = pd.read_csv(committed)
-    print(report(t, a.results))
+    print(report(t, results))
     return 0
 
 
