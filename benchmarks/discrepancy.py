@@ -5,12 +5,16 @@ after.
     python benchmarks/discrepancy.py                         # every effect at its typical size
     python benchmarks/discrepancy.py --sizes 0.5,1,3 --seeds 0,1,2 --null-fleets 20
     python benchmarks/discrepancy.py --effects customer_bleed,hp_offtake --units 1,2
+    python benchmarks/discrepancy.py --sizes 0.1,0.3,1,3 --seeds 0,1,2,3,4 \\
+        --null-fleets 800 --results benchmarks/results      # the committed 940-run table
 
-Resumable: every run is appended to ``--runs`` (JSON lines, default
-``benchmarks/results/discrepancy_runs.jsonl.gz``) as soon as it ends, keyed by (effect, size,
-seed, unit, method); a rerun with the same file skips the runs already there, so an
-interrupted benchmark continues where it stopped. The table (``--table``, Markdown) and the
-JSON of the runs asked for (``--out``) are written at the end from the cached runs.
+Resumable: every run is appended to ``--runs`` (JSON lines) as soon as it ends, keyed by
+(effect, size, seed, unit, method); a rerun with the same file skips the runs already there,
+so an interrupted benchmark continues where it stopped. The table (``--table``, Markdown) and
+the JSON of the runs asked for (``--out``) are written at the end from the cached runs.
+``--runs`` and ``--table`` default to ``discrepancy_runs.jsonl.gz`` and
+``discrepancy_table.md`` in ``--results``, itself ``out/discrepancy`` unless named: the
+committed files (``--results benchmarks/results``) are read and written only when asked.
 
 Sizes are multiples of each effect's documented realistic size (``Param.typical``; the T48
 sensor offset: +6 degR, about 1.5 sigma of the channel at cruise). Steady effects are switched
@@ -47,17 +51,17 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import binom, binomtest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from run_cache import append_run, read_runs  # noqa: E402
 
-from run_cache import append_run, read_runs  # noqa: E402  (benchmarks/run_cache.py)
+# (the project's modules and scipy are imported where they are used: ``--help`` answers at
+# once)
 
-from calibration import CalibrationSetup  # noqa: E402
-from calibration.discrepancy import DiscoverOptions, discover  # noqa: E402
-from calibration.discrepancy.synthetic import unit_with_effect  # noqa: E402
-from engine_model.runtime.shared_model import default_model  # noqa: E402
-from engine_model.simulator import fleet  # noqa: E402
+#: where the runs and tables go unless ``--results`` names another folder
+OUT = ROOT / "out" / "discrepancy"
 
 # effect -> (spec at size 1, the parameter that scales)
 EFFECTS = {
@@ -72,11 +76,16 @@ EFFECTS = {
 
 
 def simulate(base, name: str, size: float, unit: int, seed: int):
+    from calibration.discrepancy.synthetic import unit_with_effect
+
     spec, typical = EFFECTS[name]
     return unit_with_effect(base, spec.format(x=size * typical), unit, seed)
 
 
 def one_run(base, frames, opts, truth_name=None) -> dict:
+    from calibration import CalibrationSetup
+    from calibration.discrepancy import discover
+
     t0 = time.perf_counter()
     d = discover(frames, CalibrationSetup(), opts, base_model=base)
     names = [f["name"] for f in d.found]
@@ -119,14 +128,18 @@ def mds_reference(runs: list) -> dict:
     return out
 
 
-def cmapss(base, path, method, candidates=None):
+def cmapss(base, path, method, results: Path, candidates=None):
     """The loop on NASA's C-MAPSS FD002 operating-point means: one 'unit', one cycle (constant
     theta), the channels C-MAPSS shows. Each row is a mean of many readings, but of many units
     too: the documented sensor noise (half the unit-to-unit scatter) is kept as each row's
     noise, i.e. each mean is weighted like one reading (conservative). ``Ps30`` is left out:
     in the C-MAPSS files it is not a static pressure below P30
-    (:mod:`engine_model.analysis.reference`)."""
+    (:mod:`engine_model.analysis.reference`). The report goes to ``results``
+    (``discrepancy_cmapss.md``, ``discrepancy_cmapss_candidates.md`` with ``candidates``)."""
     import pandas as pd
+
+    from calibration import CalibrationSetup
+    from calibration.discrepancy import DiscoverOptions, discover
 
     df = pd.read_csv(path)
     df = df.rename(columns={"alt_kft": "alt"})
@@ -140,8 +153,8 @@ def cmapss(base, path, method, candidates=None):
 
     print(markdown(d))
     name = "discrepancy_cmapss" + ("_candidates" if candidates else "") + ".md"
-    out = Path(__file__).parent / "results" / name
-    out.write_text(markdown(d))
+    results.mkdir(parents=True, exist_ok=True)
+    (results / name).write_text(markdown(d))
     return d
 
 
@@ -159,11 +172,15 @@ def main(argv=None):
                     "data_samples/cmapss-fd002-operating-points.csv)")
     ap.add_argument("--out", help="also write the runs of this table as one JSON array "
                     "(the --runs file already holds every run)")
-    ap.add_argument("--runs", default=str(Path(__file__).parent / "results" /
-                                           "discrepancy_runs.jsonl.gz"),
-                    help="cache of finished runs (JSON lines): a rerun skips them")
-    ap.add_argument("--table", default=str(Path(__file__).parent / "results" /
-                                            "discrepancy_table.md"))
+    ap.add_argument("--results", type=Path, default=None,
+                    help="the folder of the default --runs and --table and of the --cmapss "
+                    "report (default out/discrepancy; the committed ones: "
+                    "benchmarks/results)")
+    ap.add_argument("--runs", default=None,
+                    help="cache of finished runs (JSON lines): a rerun skips them (default "
+                    "RESULTS/discrepancy_runs.jsonl.gz)")
+    ap.add_argument("--table", default=None,
+                    help="the Markdown table (default RESULTS/discrepancy_table.md)")
     ap.add_argument("--mds-units", action="store_true",
                     help="--sizes are multiples of each effect's minimum detectable size")
     ap.add_argument("--mds-fleets", type=int, default=3,
@@ -172,9 +189,16 @@ def main(argv=None):
                     help="write the table of the runs cached so far (a partial benchmark) "
                          "without running any")
     a = ap.parse_args(argv)
+    results = OUT if a.results is None else a.results
+    a.runs = a.runs or str(results / "discrepancy_runs.jsonl.gz")
+    a.table = a.table or str(results / "discrepancy_table.md")
+    from calibration.discrepancy import DiscoverOptions
+    from engine_model.runtime.shared_model import default_model
+    from engine_model.simulator import fleet
+
     base = default_model()
     if a.cmapss:
-        return cmapss(base, a.cmapss, a.method,
+        return cmapss(base, a.cmapss, a.method, results,
                       tuple(a.candidates.split(",")) if a.candidates else None)
     opts = DiscoverOptions(method=a.method)
     cache_path = Path(a.runs)
@@ -182,7 +206,7 @@ def main(argv=None):
     done = {}
     for r in read_runs(cache_path):
         done[_key(r)] = r
-    print(f"# discrepancy benchmark on {platform.node()} ({platform.processor() or '?'}); "
+    print(f"# discrepancy benchmark ({platform.processor() or '?'}); "
           f"{len(done)} cached runs in {cache_path}")
     runs = []
 
@@ -243,6 +267,7 @@ def main(argv=None):
     if a.report_only and len(runs) < len(cells):
         lines.append(f"\npartial: {len(runs)} of {len(cells)} runs ({a.runs})")
     print("\n".join(lines))
+    Path(a.table).parent.mkdir(parents=True, exist_ok=True)
     Path(a.table).write_text("\n".join(lines) + "\n")
 
 
@@ -255,6 +280,8 @@ def table(runs: list, mds: dict | None = None) -> list:
     """The Markdown table of ``runs`` (one row per effect and size: the size as a multiple of
     the realistic size and, where ``mds`` has it, of the minimum detectable size) and the
     no-effect line (the ``mds_reference`` fleets are listed apart)."""
+    from scipy.stats import binom, binomtest
+
     mds = mds or {}
     out = ["| effect | size (x realistic) | x MDS | runs | detected | identified | channel RMSE "
            "before -> after | theta bias before -> after | verdicts |",

@@ -1,7 +1,8 @@
 """Is the discrepancy loop's screen calibrated? Its score statistics at the *true* theta on
 no-effect fleets, against their nominal null distribution.
 
-    python benchmarks/discrepancy_null_calibration.py --seeds 1000-1399 --seeds 5000-5399
+    python benchmarks/discrepancy_null_calibration.py --seeds 1000-1399 --seeds 5000-5399 \\
+        [--results benchmarks/results]
 
 For each no-effect ``tiny`` fleet (one unit, ``1 + seed % 4``, the benchmark's
 ``benchmarks/discrepancy.py`` no-effect fleets for seeds 1000 + k), the model is linearised at
@@ -16,41 +17,41 @@ above nominal) and the estimation of theta (false discoveries where the statisti
 truth stays below the threshold). Printed: the share of tests below each nominal level
 against its expectation, and the fleets whose smallest p-value at the truth is below the
 family-wise critical value of :mod:`calibration.discrepancy.max_stat` (computed from the same
-covariance). Runs are cached (JSON lines) so that a rerun continues.
+covariance). Runs are cached (JSON lines, ``--runs``) so that a rerun continues. ``--runs``
+and ``--table`` default to ``discrepancy_null_calibration.jsonl.gz`` and ``.md`` in
+``--results``, itself ``out/discrepancy`` unless named: the committed files (``--results
+benchmarks/results``) are read and written only when asked.
 """
 
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import poisson
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import parse_range  # noqa: E402
+from run_cache import append_run, read_runs  # noqa: E402
 
-from run_cache import append_run, read_runs  # noqa: E402  (benchmarks/run_cache.py)
+# (the project's modules and scipy are imported where they are used: ``--help`` answers at
+# once)
 
-from calibration.discrepancy.candidates import CandidateModel, build_candidates  # noqa: E402
-from calibration.discrepancy.max_stat import screen  # noqa: E402
-from calibration.discrepancy.null_fit import Problem, unit_data  # noqa: E402
-from calibration.discrepancy.score_statistics import Scores  # noqa: E402
-from calibration.estimation_setup import CalibrationSetup  # noqa: E402
-from engine_model.runtime.shared_model import default_model  # noqa: E402
-from engine_model.simulator import fleet  # noqa: E402
-
-RESULTS = Path(__file__).parent / "results"
+#: where the runs and the table go unless ``--results`` names another folder
+OUT = ROOT / "out" / "discrepancy"
 LEVELS = (1e-2, 1e-3, 1e-4)
 
 
-def seed_range(text: str) -> list[int]:
-    a, _, b = text.partition("-")
-    return list(range(int(a), int(b or a) + 1))
-
-
 def one_fleet(base, setup, seed: int, cache: dict) -> dict:
+    from calibration.discrepancy.candidates import CandidateModel, build_candidates
+    from calibration.discrepancy.max_stat import screen
+    from calibration.discrepancy.null_fit import Problem, unit_data
+    from calibration.discrepancy.score_statistics import Scores
+    from engine_model.simulator import fleet
+
     unit = 1 + seed % 4
     df, _, _ = fleet.simulate("tiny", units=[unit], seed=seed, model=base)
     u = unit_data(df, setup)
@@ -75,6 +76,8 @@ def one_fleet(base, setup, seed: int, cache: dict) -> dict:
 
 
 def table(runs: list, label: str) -> list[str]:
+    from scipy.stats import poisson
+
     p = np.array([v[2] for r in runs for v in r["tests"].values()])
     n_f = len(runs)
     out = [f"\n### {label}: {n_f} fleets, {p.size} tests\n",
@@ -100,11 +103,22 @@ def table(runs: list, label: str) -> list[str]:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", action="append", required=True,
-                    help="a seed range, e.g. 1000-1399 (repeat for several blocks)")
-    ap.add_argument("--runs", default=str(RESULTS / "discrepancy_null_calibration.jsonl.gz"))
-    ap.add_argument("--table", default=str(RESULTS / "discrepancy_null_calibration.md"))
+                    help="seeds, e.g. 1000-1399 or 1,5,9 (repeat for several blocks)")
+    ap.add_argument("--results", type=Path, default=None,
+                    help="the folder of the default --runs and --table (default "
+                    "out/discrepancy; the committed ones: benchmarks/results)")
+    ap.add_argument("--runs", default=None,
+                    help="default RESULTS/discrepancy_null_calibration.jsonl.gz")
+    ap.add_argument("--table", default=None,
+                    help="default RESULTS/discrepancy_null_calibration.md")
     a = ap.parse_args(argv)
-    path = Path(a.runs)
+    from calibration.estimation_setup import CalibrationSetup
+    from engine_model.runtime.shared_model import default_model
+
+    results = OUT if a.results is None else a.results
+    path = Path(a.runs or results / "discrepancy_null_calibration.jsonl.gz")
+    table_path = Path(a.table or results / "discrepancy_null_calibration.md")
+    path.parent.mkdir(parents=True, exist_ok=True)
     done = {}
     for r in read_runs(path):
         done[r["seed"]] = r
@@ -112,13 +126,13 @@ def main(argv=None):
     blocks = []
     for text in a.seeds:
         runs = []
-        for seed in seed_range(text):
+        for seed in parse_range(text):
             if seed not in done:
                 done[seed] = one_fleet(base, setup, seed, cache)
                 append_run(path, done[seed])
             runs.append(done[seed])
         blocks.append((text, runs))
-    lines = [f"# Score statistics at the true theta on no-effect fleets ({platform.node()})",
+    lines = ["# Score statistics at the true theta on no-effect fleets",
              "", "`python benchmarks/discrepancy_null_calibration.py " +
              " ".join(f"--seeds {t}" for t in a.seeds) + "`"]
     for text, runs in blocks:
@@ -126,7 +140,8 @@ def main(argv=None):
     if len(blocks) > 1:
         lines += table([r for _, runs in blocks for r in runs], "all")
     print("\n".join(lines))
-    Path(a.table).write_text("\n".join(lines) + "\n")
+    table_path.parent.mkdir(parents=True, exist_ok=True)
+    table_path.write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
