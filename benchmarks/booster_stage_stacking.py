@@ -11,28 +11,30 @@ Run by hand: ``python benchmarks/booster_stage_stacking.py``. It prints two tabl
 2. **Stage stacking** (``engine_model.physics.stage_stacking``). A booster of 3 or 4 repeating
    stages at the model's design pressure ratio, inlet temperature and pressure, and peak
    efficiency. It runs behind a fixed downstream throttle (the HPC's corrected flow), at
-   relative speeds 1.0, 0.9 and 0.8. Every stage is given a blockage, scaled so that the flow
+   relative speeds 1.0, 0.9 and 0.8, and at speed 1.0 behind the exit flow that the engine's
+   own matching gives at SLS take-off (table 1), with the exit-flow change at which the
+   margin is unchanged (break-even). Every stage is given a blockage, scaled so that the flow
    at design speed and design pressure ratio falls by 2 %. Three distributions are tried:
    uniform, front-weighted linear (1, 2/3, 1/3, ... of the first stage's), and the first
    stage alone (Aker & Saravanamuttoo: fouling is heaviest on the front stages). The
-   loss-bucket curvature ``c_eta`` takes 1, 2 and 4, and the stall point is either the peak of
-   the stage characteristic or ``phi_s = 0.8``. Each cell is the change of the constant-speed
-   stall margin [points].
+   loss-bucket curvature ``c_eta`` takes 1, 2 and 4, the stall point is either the peak of
+   the stage characteristic or ``phi_s = 0.8``, and the fouling loss ``k`` (the work and
+   efficiency the fouled stages lose with their blockage) 0 (pure blockage) or 0.5: 2 x 3 x 2
+   x 2 x 3 = 72 variants, 216 cases behind the fixed exit flow (three speeds each) and 72
+   at the engine's. Each cell is the change of the constant-speed stall margin [points].
 """
 
+import argparse
 import os
 import platform
 import sys
 import time
 
 import numpy as np
-from scipy.optimize import brentq
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from engine_model import THETA_NAMES  # noqa: E402
-from engine_model.physics.atmosphere import t2_from_flight  # noqa: E402
-from engine_model.physics.stage_stacking import StageStack  # noqa: E402
-from engine_model.runtime.shared_model import default_model  # noqa: E402
+
+# (scipy and the engine model are imported where they are used: ``--help`` answers at once)
 
 POINTS = {"SLS TRA 100": (0.0, 0.0, 100.0), "SLS TRA 80": (0.0, 0.0, 80.0),
           "SLS TRA 60": (0.0, 0.0, 60.0), "climb": (20000.0, 0.7, 90.0),
@@ -43,6 +45,9 @@ SPEEDS = (1.0, 0.9, 0.8)
 def engine_table(model):
     """Print the engine's SmLPC table; return the booster exit corrected flow change [-] for
     LPC flow -2 % at each point."""
+    from engine_model import THETA_NAMES
+    from engine_model.physics.atmosphere import t2_from_flight
+
     w = np.array([[a, m, t, 1.8 * float(t2_from_flight(a, m))] for a, m, t in POINTS.values()])
     rows, exit_flow = {}, {}
     for label, name in (("new", None), ("LPC flow -2 %", "LPC_flow_mod"),
@@ -71,6 +76,10 @@ def engine_table(model):
 def stacking_table(design_point, d_exit_sls):
     """Print the stacking table; ``d_exit_sls`` is the engine's booster exit-flow change at
     SLS take-off for LPC flow -2 %."""
+    from scipy.optimize import brentq
+
+    from engine_model.physics.stage_stacking import StageStack
+
     kw = dict(pr_des=design_point["pr_lpc"], T_in=design_point["T21"],
               P_in=design_point["P21"], w_des=design_point["W25"], eta_pk=0.88)
     print("| stages | c_eta | phi_s / phi_d | k | design SM at n = 1.0 / 0.9 / 0.8 | fouling | "
@@ -114,7 +123,12 @@ def stacking_table(design_point, d_exit_sls):
     print(f"break-even exit-flow change: {100 * even.min():+.2f} to {100 * even.max():+.2f} %")
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter
+                            ).parse_args(argv)
+    from engine_model.runtime.shared_model import default_model
+
     t0 = time.time()
     model = default_model()
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python "

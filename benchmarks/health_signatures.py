@@ -9,17 +9,26 @@ whose sign differs between the three points while exceeding the channel's noise 
 table's sign consistency.
 """
 
+import argparse
 import os
 import sys
 
-import numpy as np
-
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from engine_model.analysis.signatures import SIGNATURE_CHANNELS, SIGNATURE_POINTS, signature_table  # noqa: E402
-from engine_model.runtime.shared_model import default_model  # noqa: E402
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter
+                            ).parse_args(argv)
+    import numpy as np
+
+    from engine_model.analysis.signatures import (
+        SIGNATURE_CHANNELS,
+        SIGNATURE_POINTS,
+        signature_table,
+    )
+    from engine_model.runtime.shared_model import default_model
+
     tab, sigma, flips = signature_table(default_model())
     pts = list(SIGNATURE_POINTS)
     head = "| theta -2 % | " + " | ".join(f"{c} {p}" for c in SIGNATURE_CHANNELS for p in pts)

@@ -12,22 +12,25 @@ the sea-level working line or to the C-MAPSS reference points. Run by hand:
 ``python benchmarks/map_design_point.py``.
 """
 
+import argparse
 import os
 import sys
 
-import casadi as ca
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from engine_model.physics.atmosphere import t2_from_flight  # noqa: E402
-from engine_model.physics.design import design_engine  # noqa: E402
-from engine_model.physics.turbofan import N_UNKNOWNS, X_DESIGN, cycle  # noqa: E402
-from engine_model.units import R_PER_K, T_STD_R  # noqa: E402
+
+# (casadi and the engine model are imported where they are used: ``--help`` answers at once)
 
 CRUISE = (35000.0, 0.8, 70.0)
 
 
 def solve_at(d, w_target, steps=30):
+    import casadi as ca
+
+    from engine_model.physics.turbofan import N_UNKNOWNS, X_DESIGN, cycle
+    from engine_model.units import T_STD_R
+
     x = ca.SX.sym("x", N_UNKNOWNS)
     w = ca.SX.sym("w", 4)
     r, st = cycle(d, w, np.zeros(10), x)
@@ -48,7 +51,14 @@ def solve_at(d, w_target, steps=30):
     return xx, [float(v) for v in speeds(xx, w_target)]
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter
+                            ).parse_args(argv)
+    from engine_model.physics.atmosphere import t2_from_flight
+    from engine_model.physics.design import design_engine
+    from engine_model.units import R_PER_K
+
     d = design_engine()
     alt, mach, tra = CRUISE
     T2 = float(t2_from_flight(alt, mach, 0.0)) * R_PER_K

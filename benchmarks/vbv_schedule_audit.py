@@ -1,7 +1,8 @@
 """Stability audit of the booster: the variable-bleed-valve (VBV) opening a new engine needs
 over the envelope, and whether a schedule on the controller's inputs can give it.
 
-Run by hand: ``python benchmarks/vbv_schedule_audit.py [--check]`` (about 2 minutes).
+Run by hand: ``python benchmarks/vbv_schedule_audit.py [--check | --propose]`` (about 2
+minutes).
 
 A real VBV schedule is designed this way: find, over the envelope, the opening that keeps the
 booster a minimum stall margin from surge, then tabulate it against what the engine computer
@@ -28,7 +29,10 @@ The audit also scans schedules on one combined variable ``v = n_hpc - b NRf - c 
 every point (the ground included).
 
 ``--check`` solves the same grid with the model as it is (its own schedule) and prints the
-convergence and the lowest booster stall margin per (altitude, Mach).
+convergence and the lowest booster stall margin per (altitude, Mach). ``--propose`` designs a
+schedule from the audit (:func:`propose`: the fan and Mach biases of the combined variable,
+the knots of the opening with a ``SCHEDULE_ALLOWANCE`` margin, the core-speed closing band
+and the ground limit) and prints it.
 """
 
 import argparse
