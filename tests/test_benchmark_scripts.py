@@ -1,0 +1,86 @@
+"""The benchmark scripts (``benchmarks/*.py``): ``--help`` answers at once and runs nothing
+(several scripts once ran on ``--help``, one deleting a committed report), and the shared cache
+key (``benchmarks/common.py``'s ``run_key``) is the one the committed caches were keyed with."""
+
+import os
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+from .conftest import REPO, load_script
+
+BENCHMARKS = REPO / "benchmarks"
+#: modules the scripts import, not scripts
+MODULES = ("common.py", "run_cache.py")
+SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py") if p.name not in MODULES)
+assert len(SCRIPTS) >= 20 and "pipeline_default.py" in SCRIPTS
+#: seconds one ``--help`` may take (they take well under one; this allows a loaded machine)
+HELP_SECONDS = 15
+
+#: a run's body and its keys as the scripts computed them before the key moved to
+#: benchmarks/common.py (cmapss.run_key: 16 hex digits; health_features.key_of: 20)
+BODY = {"subset": "FD001", "fold": 2, "folds": 5, "fold_seed": 0,
+        "config": {"model": "dcnn", "window": 30, "max_rul": 125.0,
+                   "inputs": "w+cmapss+theta_hat", "seed": 1, "units": [1, 2, 3]},
+        "pool": ["FD002"], "noise": "--noise data"}
+KEY_16 = "f685d17dd54d1ad3"
+KEY_20 = "f685d17dd54d1ad3106b"
+
+
+def _files(root):
+    return sorted(str(p.relative_to(root)) for p in root.rglob("*"))
+
+
+def test_help_answers_at_once_and_writes_nothing(tmp_path):
+    """Every script's ``--help`` from a copy of ``benchmarks/`` (its parent folder the working
+    directory, so that whatever a script writes, relative or beside itself, lands in the
+    copy): exit 0 with the usage within :data:`HELP_SECONDS`, and no file added or removed.
+    One test for all of them, so that the parallel test workers run the set once."""
+    root = tmp_path / "repo"
+    shutil.copytree(BENCHMARKS, root / "benchmarks",
+                    ignore=shutil.ignore_patterns("results", "__pycache__"))
+    before = _files(root)
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+
+    def run(name):
+        try:
+            proc = subprocess.run([sys.executable, str(root / "benchmarks" / name), "--help"],
+                                  cwd=root, env=env, capture_output=True, text=True,
+                                  timeout=HELP_SECONDS)
+        except subprocess.TimeoutExpired:
+            return f"{name}: no answer within {HELP_SECONDS} s"
+        if proc.returncode != 0 or not proc.stdout.startswith("usage:"):
+            return f"{name}: exit {proc.returncode}: {(proc.stderr or proc.stdout)[-800:]}"
+        return None
+
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        failed = [f for f in pool.map(run, SCRIPTS) if f]
+    assert not failed, "\n".join(failed)
+    assert _files(root) == before
+
+
+def test_run_key_is_the_key_the_caches_were_written_with():
+    common = load_script(BENCHMARKS / "common.py", "benchmarks_common")
+    assert common.run_key(BODY) == KEY_16
+    assert common.run_key(BODY, 20) == KEY_20
+    # a floors record of the committed C-MAPSS cache, keyed by its body
+    runs = load_script(BENCHMARKS / "run_cache.py", "benchmarks_run_cache")
+    keys = {r["key"] for r in runs.read_runs(BENCHMARKS / "results" / "cmapss" / "runs.jsonl.gz")}
+    assert common.run_key({"floors": 1, "subset": "FD001", "fold": 0, "folds": 5,
+                           "fold_seed": 0}) in keys
+
+
+def test_the_scripts_key_with_the_shared_function():
+    cmapss = load_script(BENCHMARKS / "cmapss.py", "cmapss_benchmark_keys")
+    health = load_script(BENCHMARKS / "health_features.py", "health_features_keys")
+    assert cmapss.run_key(BODY) == KEY_16
+    assert health.run_key(BODY, health.KEY_LENGTH) == KEY_20
+
+
+def test_parse_range_reads_ranges_and_lists():
+    common = load_script(BENCHMARKS / "common.py", "benchmarks_common")
+    assert common.parse_range("1000-1003") == [1000, 1001, 1002, 1003]
+    assert common.parse_range("0,3,5") == [0, 3, 5]
+    assert common.parse_range("0-2,7") == [0, 1, 2, 7]
+    assert common.parse_range("5") == [5]
