@@ -44,7 +44,9 @@ whole cache:
 Every figure here is a cross-validation figure on **training** units, not a test-set figure;
 the published figures beside them are test-set figures on NASA's test files (same
 last-cycle protocol, different units). If the folder holds ``test_FD00x.txt`` and
-``RUL_FD00x.txt`` the chosen configuration is evaluated on them once, at the end (``--test``).
+``RUL_FD00x.txt`` the chosen configuration is evaluated on them once, at the end (``--test``:
+one model and one input set, data-driven beside it; each evaluation recorded in
+``--work/test_touches.jsonl`` and never repeated).
 """
 
 from __future__ import annotations
@@ -168,6 +170,52 @@ def evaluate_on_test_files(args, subset: str, model: str, overrides: dict) -> li
         out.append({"subset": subset, "model": model, "inputs": name, "units": len(test_units),
                     "rmse_per_seed": per_seed, "rmse_ensemble": ens})
     return out
+
+
+def test_section(args, subsets: list, overrides: dict) -> str:
+    """The table's section on NASA's test files: each subset's chosen configuration evaluated
+    by :func:`evaluate_on_test_files` **once**. Only one model and one input set (with
+    ``data-driven`` beside it as the reference) may be named: the test files judge the
+    configuration cross-validation chose, not a choice among several. Every evaluation is
+    recorded in ``--work/test_touches.jsonl`` (its configuration, date and figures); asked
+    again, the record is reported and nothing is trained, so that no configuration meets the
+    test units twice; with ``--report`` only the records are reported."""
+    names = args.inputs.split(",")
+    if (len(args.models.split(",")) != 1 or len(names) > 2
+            or (len(names) == 2 and "data-driven" not in names)):
+        raise SystemExit("--test: name one --models and one --inputs (data-driven may stand "
+                         "beside it): the test files judge the chosen configuration once")
+    log = args.work / "test_touches.jsonl"
+    touched = {r["key"]: r for r in read_runs(log)}
+    found = [s for s in subsets if test_files(args.data_dir, s) is not None]
+    if not found:
+        return "\n\nNo test files in the folder."
+    lines = ["", "Evaluated once on NASA's test files, after the choice above "
+             "(trained on every training unit; records in test_touches.jsonl):", "",
+             "| subset | predictor | test units | RMSE per seed | RMSE, ensemble | evaluated |",
+             "|---|---|---|---|---|---|"]
+    for subset in found:
+        body = {"test": 1, "subset": subset, "model": args.models, "inputs": names,
+                "params": args.params, "noise": args.noise, "model_error": args.model_error,
+                "model_effects": None if args.model_effects is None
+                else file_sha(args.model_effects),
+                "pool": pooled_subsets(args, subset), "seeds": args.seeds, "settings": overrides}
+        key = run_key(body)
+        if key not in touched and not args.report:
+            rec = {"key": key, "kind": "test", **body, "date": time.strftime("%Y-%m-%d %H:%M"),
+                   "results": evaluate_on_test_files(args, subset, args.models, overrides)}
+            append_run(log, rec)
+            touched[key] = rec
+        if key not in touched:
+            lines.append(f"| {subset} | {args.models} {args.inputs} | - | not evaluated | - | "
+                         "- |")
+            continue
+        rec = touched[key]
+        for r in rec["results"]:
+            lines.append(f"| {subset} | {rec['model']} {r['inputs']} | {r['units']} | "
+                         + ", ".join(f"{v:.2f}" for v in r["rmse_per_seed"])
+                         + f" | {r['rmse_ensemble']:.2f} | {rec['date']} |")
+    return "\n".join(lines)
 
 
 def pooled_subsets(args, subset: str) -> list[str]:
@@ -314,8 +362,10 @@ def main(argv=None) -> int:
                     help="folds in reverse order: a second process on the same --work shares "
                     "the work (each run is looked up in the cache just before it trains)")
     ap.add_argument("--test", action="store_true",
-                    help="once the configuration is chosen: train on every training unit and "
-                    "score NASA's test files (test_FD00x.txt, RUL_FD00x.txt), when present")
+                    help="once the configuration is chosen (one --models, one --inputs, "
+                    "data-driven beside it): train on every training unit and score NASA's "
+                    "test files (test_FD00x.txt, RUL_FD00x.txt), when present; once only, "
+                    "recorded in --work/test_touches.jsonl and reported from there after")
     args = ap.parse_args(argv)
     # (hyprog runs in the repository root: the paths it is given must not be relative)
     args.data_dir, args.work = args.data_dir.resolve(), args.work.resolve()
@@ -426,18 +476,7 @@ def main(argv=None) -> int:
     runs = pd.DataFrame(rows)
     table = summarise(runs)
     if args.test:
-        found = [s for s in subsets if test_files(args.data_dir, s) is not None]
-        lines = ["", "Evaluated once on NASA's test files, after the choice above "
-                 "(trained on every training unit):", "",
-                 "| subset | predictor | test units | RMSE per seed | RMSE, ensemble |",
-                 "|---|---|---|---|---|"]
-        for subset in found:
-            for model in args.models.split(","):
-                for r in evaluate_on_test_files(args, subset, model, overrides):
-                    lines.append(f"| {subset} | {model} {r['inputs']} | {r['units']} | "
-                                 + ", ".join(f"{v:.2f}" for v in r["rmse_per_seed"])
-                                 + f" | {r['rmse_ensemble']:.2f} |")
-        table += "\n".join(lines) if found else "\n\nNo test files in the folder."
+        table += test_section(args, subsets, overrides)
     print(table)
     if args.results is not None:
         args.results.mkdir(parents=True, exist_ok=True)

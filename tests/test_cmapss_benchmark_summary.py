@@ -104,6 +104,36 @@ def test_the_test_files_are_calibrated_as_the_cross_validated_variant(bench, tmp
                       "--model-error", "0.003")]
 
 
+def test_the_test_files_are_touched_once(bench, tmp_path, monkeypatch):
+    """``--test`` evaluates the chosen configuration once: asked again it reports the record
+    and trains nothing; ``--report`` reports only records; two configurations at once are
+    refused (the test files would choose between them)."""
+    from types import SimpleNamespace
+
+    calls = []
+
+    def evaluate(args, subset, model, overrides):
+        calls.append(subset)
+        return [{"subset": subset, "model": model, "inputs": n, "units": 100,
+                 "rmse_per_seed": [13.0, 14.0], "rmse_ensemble": 12.5}
+                for n in args.inputs.split(",")]
+
+    monkeypatch.setattr(bench, "evaluate_on_test_files", evaluate)
+    monkeypatch.setattr(bench, "test_files", lambda d, s: ("t", "r"))
+    args = SimpleNamespace(inputs="data-driven,hybrid-theta", models="dcnn", params="all",
+                           noise="model", model_error=0.0, model_effects=None, pool="",
+                           seeds="0,1", work=tmp_path, data_dir=tmp_path, report=False)
+    first = bench.test_section(args, ["FD001"], {})
+    again = bench.test_section(args, ["FD001"], {})
+    assert calls == ["FD001"] and first == again
+    assert "| FD001 | dcnn hybrid-theta | 100 | 13.00, 14.00 | 12.50 |" in first
+    args.params, args.report = "default", True  # another configuration, report only
+    assert "not evaluated" in bench.test_section(args, ["FD001"], {}) and calls == ["FD001"]
+    args.inputs = "hybrid,hybrid-theta"
+    with pytest.raises(SystemExit, match="one --inputs"):
+        bench.test_section(args, ["FD001"], {})
+
+
 @pytest.fixture(scope="module")
 def modes():
     return load_script(SCRIPT.with_name("cmapss_modes.py"), "cmapss_modes")
