@@ -84,3 +84,20 @@ def test_parse_range_reads_ranges_and_lists():
     assert common.parse_range("0,3,5") == [0, 3, 5]
     assert common.parse_range("0-2,7") == [0, 1, 2, 7]
     assert common.parse_range("5") == [5]
+
+
+def test_health_features_chooses_on_every_fold_among_the_hybrids():
+    """The candidate the test units meet: the lowest mean CV RMSE over every fold, never the
+    data-driven reference or the true-θ ablation; none while a fold is missing."""
+    hf = load_script(BENCHMARKS / "health_features.py", "health_features_bench")
+
+    def cv(model, inputs, window, rmses):
+        return [{"stage": "cv", "kind": "model", "model": model, "inputs": inputs,
+                 "window": window, "fold": k, "ensemble": {"rmse": r}}
+                for k, r in enumerate(rmses)]
+
+    runs = (cv("tcn", "data-driven", 20, [1, 1, 1]) + cv("tcn", "health_true", 20, [2, 2, 2])
+            + cv("tcn", "physics", 10, [5, 6, 7]) + cv("tcn", "health", 20, [4, 9, 9])
+            + cv("trend", "physics", 20, [3, 3]))
+    assert hf.chosen_on_cv(runs) == ("tcn", "physics", 10)
+    assert hf.chosen_on_cv(cv("trend", "physics", 20, [3, 3])) is None
