@@ -109,7 +109,9 @@ def scores(pred: pd.DataFrame) -> dict:
 
 def train_predict(flights, meta, cfg, seeds, units, evaluate_units, samples) -> dict:
     """Train one model per seed on ``units`` (all development units when None), predict the
-    flights of ``evaluate_units``; per-seed scores and the seeds' mean prediction's."""
+    flights of ``evaluate_units``; per-seed scores and the seeds' mean prediction's. Each
+    seed's record carries torch's thread count: a run repeats bit for bit only at the same
+    count (:mod:`prognostics.training`)."""
     from prognostics.ensemble import fit
     from prognostics.flights import to_samples
 
@@ -122,7 +124,7 @@ def train_predict(flights, meta, cfg, seeds, units, evaluate_units, samples) -> 
         p = to_samples(model.predict(ev), samples)
         preds.append(p["RUL_pred"].to_numpy())
         per_seed.append({"seed": int(s), "best_epoch": model.members[0].best_epoch,
-                         **scores(p)})
+                         "threads": model.info["trained_with"]["threads"], **scores(p)})
     ens = p.copy()
     ens["RUL_pred"] = np.mean(preds, axis=0)
     return {"per_seed": per_seed, "ensemble": scores(ens),

@@ -31,7 +31,8 @@ cycle the true RUL and the mean, min and max of the predicted RUL, the interval'
 when there is one) under ``runs/<key>/``. The per-sample predictions
 (``predictions.parquet``, about 1.2 MB a run) and the trained weights stay in ``out/paper/runs/``
 and are not committed; regenerating them, and every table and figure from them, is rerunning
-this script (same code, seed and libraries give the same feature table and the same runs).
+this script (same code, seed and libraries give the same feature table, and the same runs at
+the same torch thread count: :mod:`prognostics.training`).
 ``--store-only --results DIR`` writes the records of the runs finished so far to
 ``DIR/runs/`` (the experiment may be running: a run's ``result.json`` is written last and
 atomically); ``--life-table --results DIR`` rewrites the accuracy-over-life table from the
