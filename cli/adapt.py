@@ -29,8 +29,9 @@ def adapt(
     channels: Annotated[str | None, typer.Option(
         "--channels", help="Channels to fit (default: T24,T30,T50,P15,P30,Nf,Nc).")] = None,
     candidates: Annotated[str | None, typer.Option(
-        "--candidates", help="Candidates (default all): design_scaling, map_scaling, map_slope, "
-        "customer_bleed, hp_offtake, reynolds, inlet_loss, nozzle_area, sensor_gain.")] = None,
+        "--candidates", help="Candidates (default: design_scaling, map_scaling, map_slope, "
+        "customer_bleed, hp_offtake, reynolds, inlet_loss, nozzle_area, sensor_gain; also "
+        "duct_loss, cooling_flow, map_pressure_ratio when named).")] = None,
     early_cycles: Annotated[int, typer.Option(
         "--early-cycles", help="Cycles of early life used (cycle <= this).", min=1)] = 20,
     units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "

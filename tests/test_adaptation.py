@@ -378,3 +378,29 @@ def test_a_fitted_bleed_schedule_negative_at_the_ceiling_is_refused_before_writi
     with pytest.raises(InputError, match="cannot be written: customer_bleed:f0=0.01,"
                                          "f_alt=-0.005.*< 0"):
         effects(0.01, -0.005)
+
+
+def test_design_point_losses_and_coolant_as_fleet_effects_and_what_the_fit_can_tell():
+    """The opt-in design-point candidates (``duct_loss``, ``cooling_flow``) on a fleet whose
+    bypass duct loses 0.5 % and whose burner 1 % more pressure, and whose HPT takes 1 % more
+    coolant, in every engine. Fitted jointly with every engine's health: the bypass loss is
+    identified (std below 0.1 %: ``P15`` sees it alone) and recovered; the burner's loss and
+    the coolant are within three stds, and the fit says how little it can tell them from the
+    engines' HPC and HPT health (stds of 0.4 % and 1.2 % on this fleet). Not defaults:
+    ``adapt`` without
+    ``--candidates`` leaves them out."""
+    df = simulated_fleet(["duct_loss:d_bypass=0.005,d_burner=0.01", "cooling_flow:d_hpt=0.01"],
+                         units=10, seed=3)
+    data, _ = fleet_data(df, CHANNELS, model_error=0.0)
+    groups = build_groups(CHANNELS, ["duct_loss", "cooling_flow"])
+    fit = fit_fleet(CandidateModel(groups), data, shared_of(groups, ["duct_loss",
+                                                                    "cooling_flow"]))
+    truth = {"d_bypass": 0.005, "d_burner": 0.01, "d_hpt": 0.01}
+    names = [q for c in groups for q in c.params]
+    est = dict(zip(names, zip(fit.phi, fit.std, strict=True), strict=True))
+    for q, (v, s) in est.items():
+        assert abs(v - truth.get(q, 0.0)) < 3 * s + 1e-4, (q, v, s)
+    assert est["d_bypass"][1] < 1e-3
+    assert est["d_burner"][1] > 2e-3 and est["d_hpt"][1] > 2e-3
+    assert fit.chi2_per_sample() < 1.2  # the noise: 1
+    assert not {"duct_loss", "cooling_flow"} & {c.name for c in build_groups(CHANNELS)}

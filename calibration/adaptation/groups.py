@@ -21,6 +21,12 @@ hp_offtake             shaft power taken off the HP spool
 reynolds               the loss of efficiency (and flow) at low Reynolds number index
 inlet_loss             intake pressure loss, constant and ~ Mach^2
 nozzle_area            the core and bypass nozzle throat areas
+duct_loss              the bypass duct's, transition duct's and burner's pressure losses
+                       (named with ``--candidates`` only)
+cooling_flow           the HPT and LPT coolant fractions (named with ``--candidates`` only)
+map_pressure_ratio_<k> the pressure-ratio scaler of a compressor's map, level and shape in
+                       corrected speed (named with ``--candidates`` only; tried on FD002 and
+                       not made a default: ``docs/adaptation.md``)
 sensor_gain_<ch>       a sensor convention: the channel reads ``(1 + gain)`` times the
                        model's quantity (``sensor_bias`` with its offset held at zero: a
                        gain is scale-free and, unlike an offset, has a documented range)
@@ -48,9 +54,12 @@ from engine_model.validation import InputError
 LEVEL_GROUP = "design_scaling"
 #: The steady candidates, in the order they are carried.
 STEADY_GROUPS = ("design_scaling", "map_scaling", "map_slope", *STEADY_DEFAULT)
+#: Design-point quantities and a third map scaler a user may name (``--candidates``); not
+#: among the defaults, which made the committed FD002 adaptation.
+OPTIONAL_GROUPS = ("duct_loss", "cooling_flow", "map_pressure_ratio")
 #: The groups with one instance per component (option ``component``) and their components.
 PER_COMPONENT = {"design_scaling": COMPONENT_MODS, "map_scaling": COMPONENT_MODS,
-                 "map_slope": ("fan", "LPC", "HPC")}
+                 "map_slope": ("fan", "LPC", "HPC"), "map_pressure_ratio": ("fan", "LPC", "HPC")}
 SENSOR_GROUP = "sensor_gain"
 
 
@@ -66,12 +75,14 @@ def _prior(effect, params) -> np.ndarray:
 
 
 def check_names(names=None) -> tuple:
-    """The candidate names to use (default all), each checked."""
+    """The candidate names to use (default: every group but :data:`OPTIONAL_GROUPS`), each
+    checked."""
+    known = (*STEADY_GROUPS, *OPTIONAL_GROUPS, SENSOR_GROUP)
     names = tuple(names) if names is not None else (*STEADY_GROUPS, SENSOR_GROUP)
-    unknown = [n for n in names if n not in (*STEADY_GROUPS, SENSOR_GROUP)]
+    unknown = [n for n in names if n not in known]
     if unknown or not names:
         raise InputError(f"--candidates: unknown candidate(s) {', '.join(unknown) or '(none)'}"
-                         f"; known: {', '.join((*STEADY_GROUPS, SENSOR_GROUP))}")
+                         f"; known: {', '.join(known)}")
     return names
 
 
@@ -81,7 +92,7 @@ def build_groups(channels, names=None) -> list[Candidate]:
     candidate's ``prior`` attached."""
     names = check_names(names)
     out = []
-    for n in STEADY_GROUPS:
+    for n in (*STEADY_GROUPS, *OPTIONAL_GROUPS):
         if n not in names:
             continue
         if n in PER_COMPONENT:

@@ -54,6 +54,11 @@ intake loss)
 bleed into the bypass duct)            and fan speeds, fractions of design)
 ``W_customer_bleed`` (kg/s, default 0) ``W25`` [kg/s] (HPC inlet flow), ``T30`` [K], ``P30`` [Pa]
 ``P_offtake_HP`` (W, default 0)        -
+``dp_bypass``, ``dp_icd``,             -
+``dp_burner`` (dP/P at design flow:
+bypass duct, booster-HPC duct, burner)
+``f31``, ``f32`` (HPT and LPT coolant  -
+fractions of the HPC inlet flow)
 ``sensor:<channel>`` (every output,    -
 N-CMAPSS units)
 =====================================  =========================================================

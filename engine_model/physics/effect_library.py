@@ -27,6 +27,18 @@ reynolds            Reynolds-number effect on the turbomachinery at altitude. Th
                     0.05, is a deliberately small one for detection studies, not a sourced value).
                     The efficiency modifier changes by ``-(1/eta_des - 1)(RNI^-n - 1)`` and the flow
                     modifier by ``flow_ratio`` times that.
+duct_loss           changes of the duct total-pressure losses at their design flow, added to
+                    the design's dP/P (bypass duct 1.0 %, booster-HPC duct 1.5 %, burner
+                    4.0 %, each scaled with its corrected flow squared): ``d_bypass``,
+                    ``d_icd``, ``d_burner``. A design-point quantity of a performance model
+                    that a real engine's data may not share; the valid ranges, class-typical
+                    choices rather than one source's, keep each loss between a fifth (bypass),
+                    a third (transition duct) or a half (burner) of its design value and two
+                    to four times it.
+cooling_flow        changes of the turbine coolant flows bled from the HPC, as fractions of
+                    its inlet flow added to the design's (HPT ``W31/W25`` 0.111, LPT
+                    ``W32/W25`` 0.067): ``d_hpt``, ``d_lpt``. The HPT coolant bypasses the
+                    burner, so the same work needs a hotter burner exit.
 inlet_loss          an extra intake total-pressure loss (damage, ice, a poor intake lip):
                     ``P2 <- P2 (1 - dp - dp_ram Mach^2)``.
 nozzle_area         a change of the core (``dA8``) and bypass (``dA18``) nozzle throat areas,
@@ -97,6 +109,13 @@ corrected fan speed, so ``Nf`` does not move for the steady effects). The reason
 - reynolds: only at altitude (RNI < 1) the components lose efficiency; at SLS nothing moves
   (RNI = 1); at cruise the hot section runs hotter (``T48``, ``Wf`` up).
 - inlet_loss: ``P2`` falls, so every pressure downstream falls with it.
+- duct_loss (every loss larger, at the held fan speed): the bypass duct's loss lowers ``P15``
+  and pushes the fan up its speed line (more pressure ratio and work: the LPT needs a hotter
+  gas, ``Wf`` and ``T50`` up); the burner's loss makes the HPC deliver more pressure for the
+  same turbine inlet pressure (``P30`` up).
+- cooling_flow (more coolant): less air passes the burner, which must run hotter for the same
+  work (``T40``, ``T50``, ``Wf`` up), and the HPT's flow capacity, fed with less gas, holds a
+  lower ``P30``.
 - nozzle_area (a larger core nozzle): the LPT expands further, ``P50`` falls; ``T50`` falls.
 - map_scaling: at SLS full power the component runs at its design corrected speed (dn = 0)
   and nothing moves; at cruise (TRA 80, dn < 0) a positive ``eff_1`` lowers the component's
@@ -257,6 +276,57 @@ class NozzleArea(Effect):
             return value * (1.0 + p["dA8"])
         if hook == "A18":
             return value * (1.0 + p["dA18"])
+        return value
+
+
+@register
+class DuctLoss(Effect):
+    name = "duct_loss"
+    description = ("Changes of the total-pressure losses of the bypass duct, the booster-HPC "
+                   "transition duct and the burner, at their design flow.")
+    params = (
+        Param("d_bypass", "-", 0.0, "change of the bypass duct's dP/P at design flow", 0.005,
+              (-0.005, 0.01), valid=(-0.008, 0.03)),
+        Param("d_icd", "-", 0.0, "change of the transition duct's dP/P at design flow", 0.005,
+              (-0.005, 0.01), valid=(-0.010, 0.025)),
+        Param("d_burner", "-", 0.0, "change of the burner's dP/P at design flow", 0.01,
+              (-0.01, 0.02), valid=(-0.02, 0.04)),
+    )
+    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P15", "P21", "P24", "Ps30", "P30",
+             "P40", "P50")
+    signature = {"SLS": {"Wf": +1, "T50": +1, "P30": +1, "P15": -1},
+                 "CRZ": {"Wf": +1, "T50": +1, "P30": +1, "P15": -1}}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == "dp_bypass":
+            return value + p["d_bypass"]
+        if hook == "dp_icd":
+            return value + p["d_icd"]
+        if hook == "dp_burner":
+            return value + p["d_burner"]
+        return value
+
+
+@register
+class CoolingFlow(Effect):
+    name = "cooling_flow"
+    description = ("Changes of the turbine coolant flows taken from the HPC, as fractions of "
+                   "the HPC inlet flow: HPT (W31) and LPT (W32).")
+    params = (
+        Param("d_hpt", "-", 0.0, "change of the HPT coolant fraction W31/W25", 0.01,
+              (-0.02, 0.02), valid=(-0.05, 0.05)),
+        Param("d_lpt", "-", 0.0, "change of the LPT coolant fraction W32/W25", 0.005,
+              (-0.01, 0.01), valid=(-0.03, 0.03)),
+    )
+    moves = ("Wf", "Nc", "T24", "T30", "T40", "T48", "T50", "P24", "Ps30", "P30", "P40")
+    signature = {"SLS": {"Wf": +1, "T40": +1, "T50": +1, "P30": -1},
+                 "CRZ": {"Wf": +1, "T40": +1, "T50": +1, "P30": -1}}
+
+    def apply(self, hook, value, p, ctx):
+        if hook == "f31":
+            return value + p["d_hpt"]
+        if hook == "f32":
+            return value + p["d_lpt"]
         return value
 
 

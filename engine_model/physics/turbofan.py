@@ -124,7 +124,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     # --- bypass duct and nozzle (the VBV air mixes into the bypass stream) ---
     W13 = W2 - W22
     wc13 = components.corrected_flow(W13, T21, P21)
-    P15 = components.duct_loss(P21, wc13, d.wc13_des, s.dp_bypass)
+    P15 = components.duct_loss(P21, wc13, d.wc13_des, hook("dp_bypass", s.dp_bypass))
     m15 = components.mixer(W13, T21, 0.0, W_vbv, T24, 0.0)
     byp = components.convergent_nozzle(P15, m15["T"], 0.0, P_amb, hook("A18", d.A18),
                                        s.nozzle_cd, s.nozzle_cv)
@@ -133,7 +133,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     W_bleed_24 = hook("W_bleed_24", 0.0 * W22, W22=W22)  # handling / customer bleed at station 24
     W25_up = W22 - W_vbv - W_bleed_24
     wc24 = components.corrected_flow(W22, T24, P24)
-    P25 = components.duct_loss(P24, wc24, d.wc24_des, s.dp_icd)
+    P25 = components.duct_loss(P24, wc24, d.wc24_des, hook("dp_icd", s.dp_icd))
     T25 = T24
     NRc = n_hpc * d.nrc_des  # C-MAPSS corrects core speed on T24
     Nc = NRc * ca.sqrt(T24 / T_STD_K)
@@ -144,8 +144,8 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
                                 slope_mod=hook("HPC_slope_mod", 0.0, **at25),
                                 pr_mod=hook("HPC_pr_mod", 0.0, **at25))
     W25, T30, P30 = hpc["W"], hpc["T_out"], hpc["P_out"]
-    W31 = d.f31 * W25
-    W32 = d.f32 * W25
+    W31 = hook("f31", d.f31) * W25  # HPT coolant (W31) and LPT coolant (W32) fractions
+    W32 = hook("f32", d.f32) * W25
     h25 = gas.h(T25)
     h30 = gas.h(T30)
     h_int = h25 + s.f_interstage * (h30 - h25)
@@ -160,7 +160,7 @@ def cycle(d: EngineDesign, w, theta, x, hook=_no_hook):
     loading = components.burner_loading(P30, T30, W3) / d.loading_des
     eta_b = components.burner_efficiency(loading, s.eta_burner)
     wc3 = components.corrected_flow(W3, T30, P30)
-    dp_b = s.dp_burner * (wc3 / d.wc3_des) ** 2
+    dp_b = hook("dp_burner", s.dp_burner) * (wc3 / d.wc3_des) ** 2
     brn = components.burner(T30, P30, W3, T40, dp_b, eta_b)
     far4, Wf, P40, W4 = brn["far"], brn["Wf"], brn["P_out"], brn["W_out"]
 
