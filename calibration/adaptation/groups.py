@@ -45,9 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.discrepancy.candidates import STEADY_DEFAULT, Candidate, _make
-from engine_model.physics.effect_library import COMPONENT_MODS
-from engine_model.physics.effects import parse_effect_spec
+from calibration.discrepancy.candidates import STEADY_DEFAULT, Candidate, _make, components
+from engine_model.physics.effects import parse_effect_spec, registry
 from engine_model.validation import InputError
 
 #: The levels: always fitted (:mod:`.selection`), not selected.
@@ -57,9 +56,6 @@ STEADY_GROUPS = ("design_scaling", "map_scaling", "map_slope", *STEADY_DEFAULT)
 #: Design-point quantities and a third map scaler a user may name (``--candidates``); not
 #: among the defaults, which made the committed FD002 adaptation.
 OPTIONAL_GROUPS = ("duct_loss", "cooling_flow", "map_pressure_ratio")
-#: The groups with one instance per component (option ``component``) and their components.
-PER_COMPONENT = {"design_scaling": COMPONENT_MODS, "map_scaling": COMPONENT_MODS,
-                 "map_slope": ("fan", "LPC", "HPC"), "map_pressure_ratio": ("fan", "LPC", "HPC")}
 SENSOR_GROUP = "sensor_gain"
 
 
@@ -95,8 +91,9 @@ def build_groups(channels, names=None) -> list[Candidate]:
     for n in (*STEADY_GROUPS, *OPTIONAL_GROUPS):
         if n not in names:
             continue
-        if n in PER_COMPONENT:
-            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in PER_COMPONENT[n]]
+        cls = registry()[n]
+        if "component" in cls.options:  # one instance per component the effect exists for
+            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in components(cls)]
         else:
             out.append(_make(parse_effect_spec(n)))
     if SENSOR_GROUP in names:
