@@ -279,8 +279,19 @@ class NozzleArea(Effect):
         return value
 
 
+class DesignChange(Effect):
+    """Base of the effects that add a parameter to a design quantity of the cycle: ``ADDS_TO``
+    maps each hook (the quantity's name) to the parameter added to it."""
+
+    ADDS_TO: dict = {}
+
+    def apply(self, hook, value, p, ctx):
+        q = self.ADDS_TO.get(hook)
+        return value if q is None else value + p[q]
+
+
 @register
-class DuctLoss(Effect):
+class DuctLoss(DesignChange):
     name = "duct_loss"
     description = ("Changes of the total-pressure losses of the bypass duct, the booster-HPC "
                    "transition duct and the burner, at their design flow.")
@@ -297,18 +308,12 @@ class DuctLoss(Effect):
     signature = {"SLS": {"Wf": +1, "T50": +1, "P30": +1, "P15": -1},
                  "CRZ": {"Wf": +1, "T50": +1, "P30": +1, "P15": -1}}
 
-    def apply(self, hook, value, p, ctx):
-        if hook == "dp_bypass":
-            return value + p["d_bypass"]
-        if hook == "dp_icd":
-            return value + p["d_icd"]
-        if hook == "dp_burner":
-            return value + p["d_burner"]
-        return value
+    #: the design quantity each parameter is added to (:class:`DesignChange`)
+    ADDS_TO = {"dp_bypass": "d_bypass", "dp_icd": "d_icd", "dp_burner": "d_burner"}
 
 
 @register
-class CoolingFlow(Effect):
+class CoolingFlow(DesignChange):
     name = "cooling_flow"
     description = ("Changes of the turbine coolant flows taken from the HPC, as fractions of "
                    "the HPC inlet flow: HPT (W31) and LPT (W32).")
@@ -322,12 +327,7 @@ class CoolingFlow(Effect):
     signature = {"SLS": {"Wf": +1, "T40": +1, "T50": +1, "P30": -1},
                  "CRZ": {"Wf": +1, "T40": +1, "T50": +1, "P30": -1}}
 
-    def apply(self, hook, value, p, ctx):
-        if hook == "f31":
-            return value + p["d_hpt"]
-        if hook == "f32":
-            return value + p["d_lpt"]
-        return value
+    ADDS_TO = {"f31": "d_hpt", "f32": "d_lpt"}
 
 
 class ComponentEffect(Effect):
