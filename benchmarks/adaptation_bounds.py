@@ -24,7 +24,6 @@ import json
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import imported  # noqa: E402
@@ -33,15 +32,13 @@ from common import imported  # noqa: E402
 
 
 def on_bound(groups, chosen, fit) -> list[str]:
-    """``candidate.parameter=value`` of every chosen parameter on a bound of its valid range:
-    :meth:`calibration.adaptation.adapt.Adaptation.parameters`'s list (its ``at_bound``
-    test, the one ``hyprog adapt``'s record carries) of ``fit`` with ``chosen`` among
-    ``groups``."""
-    from calibration.adaptation.adapt import Adaptation
+    """``candidate.parameter=value`` of every chosen parameter on a bound of its valid range
+    (:func:`calibration.adaptation.adapt.fitted_parameters`'s ``at_bound``, the test
+    ``hyprog adapt``'s record carries)."""
+    from calibration.adaptation.adapt import fitted_parameters
 
-    view = SimpleNamespace(selection=SimpleNamespace(fit=fit, chosen=chosen), groups=groups)
     return [f"{p['candidate']}.{p['parameter']}={p['value']:+.3g}"
-            for p in Adaptation.parameters(view) if p["at_bound"]]
+            for p in fitted_parameters(groups, chosen, fit) if p["at_bound"]]
 
 
 def arguments(doc: str) -> argparse.ArgumentParser:

@@ -361,9 +361,7 @@ def test_a_map_shape_the_fit_lacks_shows_as_held_out_errors_of_many_stds(candida
 def test_a_fitted_bleed_schedule_negative_at_the_ceiling_is_refused_before_writing():
     """The fit bounds ``f0`` and ``f_alt`` one by one; their combination is checked when the
     effects are written, as the loader checks it: an unloadable model is never written."""
-    from types import SimpleNamespace
-
-    from calibration.adaptation.adapt import Adaptation
+    from calibration.adaptation.adapt import effect_specs
 
     groups = build_groups(("T30",), ["customer_bleed"])
     (c,) = groups
@@ -371,8 +369,7 @@ def test_a_fitted_bleed_schedule_negative_at_the_ceiling_is_refused_before_writi
     def effects(f0, f_alt):
         phi = np.zeros(len(c.params))
         phi[list(c.params).index("f0")], phi[list(c.params).index("f_alt")] = f0, f_alt
-        fit = SimpleNamespace(fit=SimpleNamespace(phi=phi), chosen=[c.name])
-        return Adaptation.effects(SimpleNamespace(selection=fit, groups=groups))
+        return effect_specs(groups, [c.name], phi)
 
     assert effects(0.0, 0.0046) == ["customer_bleed:f0=0,f_alt=0.0046"]
     with pytest.raises(InputError, match="cannot be written: customer_bleed:f0=0.01,"

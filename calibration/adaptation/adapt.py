@@ -30,6 +30,41 @@ from .selection import (
 )
 
 
+def fitted_parameters(groups, chosen, fit) -> list[dict]:
+    """Every parameter of the ``chosen`` candidates among ``groups`` in ``fit``: candidate,
+    parameter, value, posterior std, valid range, and whether it sits on a bound of that
+    range (``at_bound``)."""
+    std = fit.std
+    out, k = [], 0
+    for c in groups:
+        if c.name not in chosen:
+            continue
+        for j, q in enumerate(c.params):
+            v = float(fit.phi[c.index[j]])
+            lo, hi = (float(x) for x in c.valid[j])
+            out.append({"candidate": c.name, "parameter": q, "value": v,
+                        "std": float(std[k]) if k < len(std) else float("nan"),
+                        "valid": [lo, hi],
+                        "at_bound": bool(np.isclose(v, lo) or np.isclose(v, hi))})
+            k += 1
+    return out
+
+
+def effect_specs(groups, chosen, phi) -> list[str]:
+    """The ``chosen`` candidates among ``groups`` as effect specifications at ``phi``, each
+    checked as :func:`~calibration.adaptation.artefact.load_adapted` will check it. The fit
+    bounds every parameter on its own, not their combinations: a customer bleed whose fitted
+    schedule is negative at the ceiling (``f0 + 4.5 f_alt < 0``) is refused here, with its
+    values, rather than written into a model no command could load."""
+    specs = [c.spec(phi[c.index]) for c in groups if c.name in chosen]
+    for s in specs:
+        try:
+            parse_effect_spec(s)
+        except EffectSpecError as exc:
+            raise InputError(f"the adapted model cannot be written: {s}: {exc}") from None
+    return specs
+
+
 @dataclass
 class Adaptation:
     """The result: the selection, the data it used, the noise table, the held-out-engine
@@ -45,38 +80,12 @@ class Adaptation:
     source: dict
 
     def parameters(self) -> list[dict]:
-        """Every fitted parameter: candidate, parameter, value, posterior std, valid range,
-        and whether it sits on a bound of that range."""
-        sel = self.selection
-        std = sel.fit.std
-        out, k = [], 0
-        for c in self.groups:
-            if c.name not in sel.chosen:
-                continue
-            for j, q in enumerate(c.params):
-                v = float(sel.fit.phi[c.index[j]])
-                lo, hi = (float(x) for x in c.valid[j])
-                out.append({"candidate": c.name, "parameter": q, "value": v,
-                            "std": float(std[k]) if k < len(std) else float("nan"),
-                            "valid": [lo, hi],
-                            "at_bound": bool(np.isclose(v, lo) or np.isclose(v, hi))})
-                k += 1
-        return out
+        """Every fitted parameter (:func:`fitted_parameters`)."""
+        return fitted_parameters(self.groups, self.selection.chosen, self.selection.fit)
 
     def effects(self) -> list[str]:
-        """The chosen candidates as effect specifications at the fitted values, each
-        checked as :func:`~calibration.adaptation.artefact.load_adapted` will check it. The
-        fit bounds every parameter on its own, not their combinations: a customer bleed whose
-        fitted schedule is negative at the ceiling (``f0 + 4.5 f_alt < 0``) is refused here,
-        with its values, rather than written into a model no command could load."""
-        sel = self.selection
-        specs = [c.spec(sel.fit.phi[c.index]) for c in self.groups if c.name in sel.chosen]
-        for s in specs:
-            try:
-                parse_effect_spec(s)
-            except EffectSpecError as exc:
-                raise InputError(f"the adapted model cannot be written: {s}: {exc}") from None
-        return specs
+        """The chosen candidates as checked effect specifications (:func:`effect_specs`)."""
+        return effect_specs(self.groups, self.selection.chosen, self.selection.fit.phi)
 
     def theta_summary(self, fit: FleetFit) -> dict:
         """Early-life health of the engines under ``fit``: mean and std across engines of
