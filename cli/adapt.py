@@ -42,6 +42,9 @@ def adapt(
         "--model-error", help="The model's own error, a relative std added to each sample's "
         "noise (default 0.001, calibration.adaptation.data.MODEL_ERROR; 0: the noise alone).",
         min=0.0)] = None,
+    judge: Annotated[int, typer.Option(
+        "--judge", help="Candidates judged with each condition left out per step, the best "
+        "in sample first (default 3, calibration.adaptation.selection.TOP).", min=1)] = 3,
     as_json: Annotated[bool, typer.Option("--json", help="Print the record as JSON.")] = False,
     overwrite: Overwrite = False,
     quiet: Quiet = False,
@@ -72,7 +75,8 @@ def adapt(
         say = None if (quiet or as_json) else (lambda msg: err.print(msg, soft_wrap=True))
         res = run(df, tuple(chans), cands, early_cycles,
                   log=say, source=str(data), seed=seed,
-                  model_error=MODEL_ERROR if model_error is None else model_error)
+                  model_error=MODEL_ERROR if model_error is None else model_error,
+                  judge=judge)
         record = res.record()
         write_adapted(record, out, overwrite, (data,))
     if as_json:

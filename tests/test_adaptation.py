@@ -18,7 +18,14 @@ from calibration.adaptation.adapt import record_groups
 from calibration.adaptation.data import MODEL_ERROR, fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
-from calibration.adaptation.selection import MIN_GAIN, OutOfSample, enters, shared_of
+from calibration.adaptation.selection import (
+    MIN_GAIN,
+    TOP,
+    OutOfSample,
+    enters,
+    select,
+    shared_of,
+)
 from calibration.discrepancy.candidates import CandidateModel
 from calibration.measurement_noise import noise_from_data
 from engine_model import OUTPUT_NAMES, THETA_NAMES, EngineModel
@@ -146,6 +153,17 @@ def test_a_candidate_enters_on_the_out_of_sample_gain_and_the_worst_condition_is
     assert not enters(OutOfSample(small, chi2={1: 8.0, 2: 11.9, 3: 10.0}), current)
 
 
+def test_judging_fewer_than_one_candidate_is_refused_and_the_cli_default_is_top():
+    import inspect
+
+    from cli.adapt import adapt as adapt_cli
+
+    with pytest.raises(ValueError, match="judge"):
+        select(None, None, [], judge=0)
+    default = inspect.signature(adapt_cli).parameters["judge"].default
+    assert default == TOP == inspect.signature(adapt).parameters["judge"].default
+
+
 def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
         candidate_model, shaped):
     res = adapt(shaped, CHANNELS, CANDIDATES, model=candidate_model,
@@ -187,9 +205,13 @@ def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not
 
 
 def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_model):
+    lines = []
     res = adapt(simulated_fleet(seed=7), CHANNELS, CANDIDATES, model=candidate_model,
-                model_error=0.0)
+                model_error=0.0, log=lines.append, judge=2)
     assert all(c.startswith("design_scaling") for c in res.selection.chosen)
+    # one step, two candidates judged with each condition left out (--judge 2), recorded
+    assert sum(1 for m in lines if m.startswith("  ")) == 2, lines
+    assert res.record()["data"]["judge"] == 2
     # with the right model every condition left out is predicted within a few of its own
     # std (the posterior's and the noise's; 42 conditions x channels)
     assert max(worst_z(res.selection.after).values()) < 4.0

@@ -20,6 +20,7 @@ from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
 from .fleet_fit import FleetData, FleetFit, Shared, fit_fleet
 from .groups import SENSOR_GROUP, build_groups
 from .selection import (
+    TOP,
     OutOfSample,
     Selection,
     condition_out,
@@ -130,11 +131,12 @@ class Adaptation:
 def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
           early_cycles: int = EARLY_CYCLES, units=None, model=None, log=None,
           source: str = "data", engine_folds: int = 3, seed: int = 0,
-          model_error: float = MODEL_ERROR) -> Adaptation:
+          model_error: float = MODEL_ERROR, judge: int = TOP) -> Adaptation:
     """Adapt the engine model to the fleet in ``df`` (package docstring). ``candidates``:
     registry names of :mod:`.groups` (default all); ``model``: a prebuilt
     :class:`~calibration.discrepancy.candidates.CandidateModel` of the same groups (tests);
-    ``model_error``: the model's relative error in each sample's std (:mod:`.data`)."""
+    ``model_error``: the model's relative error in each sample's std (:mod:`.data`);
+    ``judge``: candidates judged out of sample per step (:data:`.selection.TOP`)."""
     from calibration.discrepancy.candidates import CandidateModel
 
     t0 = time.perf_counter()
@@ -146,13 +148,14 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
                          "(C-MAPSS FD002 and FD004 have six)")
     groups = build_groups(data.channels, candidates)
     model = model or CandidateModel(groups)
-    sel = select(model, data, groups, log)
+    sel = select(model, data, groups, log, judge=judge)
     before = engines_out(model, data, Shared.none(), sel.base_fit, engine_folds, seed)
     after = engines_out(model, data, shared_of(groups, sel.chosen), sel.fit, engine_folds,
                         seed)
     early = df[df["cycle"] <= early_cycles]
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
-            "samples": len(data.y), "early_cycles": early_cycles, "model_error": model_error}
+            "samples": len(data.y), "early_cycles": early_cycles, "model_error": model_error,
+            "judge": judge}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
 
 

@@ -21,7 +21,8 @@ Learning*, 2nd ed., sec. 3.3.2 and 7.10):
 1. *screen*: every candidate not yet in is added to the current fit and refitted briefly
    (:data:`SCREEN_ITER` Gauss-Newton steps, warm-started); candidates are ranked by the drop
    of the in-sample objective;
-2. *judge*: the :data:`TOP` best are refitted fully and scored by :func:`condition_out`;
+2. *judge*: the ``judge`` best (default :data:`TOP`) are refitted fully and scored by
+   :func:`condition_out`;
 3. the best enters only if it lowers ``chi2_out`` by at least :data:`MIN_GAIN` (relative);
    otherwise the selection stops. Nothing is fitted per operating point: every candidate is
    one set of numbers for the whole envelope. The worst condition left out (the largest
@@ -48,7 +49,11 @@ from .groups import LEVEL_GROUP, bounds
 
 #: Gauss-Newton steps of a screening refit.
 SCREEN_ITER = 4
-#: Candidates judged out of sample per step.
+#: Candidates judged out of sample per step (``hyprog adapt --judge``). Each costs a full fit
+#: and one per condition left out; three made the committed FD002 model. Forward selection
+#: that judges only the best few in sample is path-dependent: a candidate that ranks high in
+#: sample but does not generalise takes the place of one that would have entered, and can
+#: end the selection early (FD002 with the design-point losses, docs/adaptation.md).
 TOP = 3
 #: Relative drop of the out-of-sample error a candidate must bring to enter (a judgement:
 #: well above the run-to-run change of a refit, ~0.1 %, and small enough to let an effect
@@ -155,9 +160,13 @@ class Selection:
     steps: list = field(default_factory=list)
 
 
-def select(model, data: FleetData, groups, log=None, max_steps: int = 8) -> Selection:
+def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
+           judge: int = TOP) -> Selection:
     """Forward selection of ``groups`` (module docstring) on ``data``, after the levels
-    (:data:`.groups.LEVEL_GROUP` of every component, when among ``groups``)."""
+    (:data:`.groups.LEVEL_GROUP` of every component, when among ``groups``); ``judge``
+    candidates judged out of sample per step."""
+    if judge < 1:
+        raise ValueError(f"judge must be at least 1, got {judge}")
     say = log or (lambda msg: None)
     fit = fit_fleet(model, data, Shared.none())
     base_fit = fit
@@ -183,7 +192,7 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8) -> Sele
             ranked.append((trial.cost, c.name))
         ranked.sort()
         best = None
-        for _, name in ranked[:TOP]:
+        for _, name in ranked[:judge]:
             sh = shared_of(groups, [*chosen, name])
             full = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x)
             o = condition_out(model, data, sh, full)
