@@ -194,7 +194,7 @@ def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not
     fleet = simulated_fleet(["map_slope:component=fan,slope=-0.4"], units=8, cycles=12,
                             seed=11)
     res = adapt(fleet, CHANNELS, names, model=CandidateModel(build_groups(CHANNELS, names)),
-                model_error=0.0)
+                model_error=0.0, judge=2)
     sel = res.selection
     added = [c for c in sel.chosen if not c.startswith("design_scaling")]
     assert added and added[0] == "map_slope_fan", sel.chosen
@@ -222,8 +222,9 @@ def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_mode
 
 def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candidate_model,
                                                                  shaped):
+    # a record is all this needs: one candidate judged per step (--judge 1) keeps it short
     res = adapt(shaped.iloc[: 12 * 18 // 2], CHANNELS, CANDIDATES, model=candidate_model,
-                model_error=0.0)
+                model_error=0.0, judge=1)
     out = write_adapted(res.record(), tmp_path / "adapted.json")
     loaded = load_adapted(out)
     assert loaded.effects == res.effects()
