@@ -22,7 +22,8 @@ format of :mod:`.checkpoint`::
 Data may be a :class:`~engine_model.datasets.Dataset` (its metadata names the development
 and test units) or a DataFrame (then ``units`` / ``test_units`` are given as options or
 arguments). Fitting never touches the test units; validation and early stopping use whole
-development units (``validation="auto"``).
+development units (``validation="auto"``; with a single training unit, 10 % of its flights:
+:meth:`~prognostics.train_config.TrainConfig.validation_for`).
 """
 
 from __future__ import annotations

@@ -16,9 +16,10 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
    dropped, and so are the operating settings when those rows fly a single operating
    condition (:func:`training_conditions`) (:attr:`Prepared.dropped`);
 3. windows inside each unit-and-role segment (:mod:`.windows`; the flight models of
-   :mod:`.train_config` read the flight table of the rows, :func:`flight_frame`, with every
-   flight ending a window, and so does a sample model whose inputs name a health group, on a
-   table with one row per cycle: :func:`rows_for`), target ``min(RUL, max_rul)`` (minus the
+   :mod:`.train_config` read the flight table of the rows, :func:`flight_frame`, as does a
+   sample model whose inputs name a health group, on a table with one row per cycle:
+   :func:`rows_for`; a flight model's windows run over each unit's whole history, every
+   flight ending one, which takes that flight's role), target ``min(RUL, max_rul)`` (minus the
    physics trend for the ``trend`` model, :func:`.baseline.trend_per_flight`) at the window's
    last row (``max_rul`` None: no cap, the paper's setting); the size rules of
    :mod:`.train_config` fill in the batch size, epochs and patience from the number of
@@ -30,7 +31,7 @@ ensemble module assembles them into a :class:`~prognostics.ensemble.RulModel`):
 
 Reproducibility: the initial weights come from a generator seeded by the seed, the batch order
 from a second generator seeded by the seed + 1 (a CPU ``torch.Generator``, also when training
-on CUDA), dropout masks (DCNN) from torch's global generator seeded by the seed + 2 when the
+on CUDA), dropout masks (DCNN, TCN) from torch's global generator seeded by the seed + 2 when the
 member starts, there are no DataLoader workers, and :func:`deterministic` switches on torch's
 deterministic algorithms (and deterministic cuBLAS / cuDNN on CUDA). Same seed, same data,
 same device and thread count -> the same weights and losses, bit for bit (a model's manifest
@@ -231,14 +232,26 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
             cfg = replace(cfg, trend_cap=float(unit_lives(frame[roles == TRAIN]).max()))
         offset = trend_per_flight(frame, cfg.trend_cap, source)
         y = y - offset
-    a, b = segments(unit, roles)
-    seg_role = roles[a]
     windows = {}
-    for role in (TRAIN, VALIDATION, CONFORMAL):
-        pick = seg_role == role
-        if pick.any():
-            windows[role] = make_windows(x, a[pick], b[pick], cfg.window, cfg.stride, y,
-                                         pad_all=cfg.per_flight)
+    if cfg.per_flight:
+        # a flight model reads a unit's whole history, as it does at prediction: windows
+        # over whole units, each taking the role of its last flight (validation flights
+        # inside a training unit stay in the history of the windows after them)
+        used = np.isin(roles, (TRAIN, VALIDATION, CONFORMAL))
+        a, b = segments(unit, used)
+        every = make_windows(x, a[used[a]], b[used[a]], cfg.window, cfg.stride, y,
+                             pad_all=True)
+        for role in (TRAIN, VALIDATION, CONFORMAL):
+            pick = roles[every.rows] == role
+            if pick.any():
+                windows[role] = every.subset(pick)
+    else:
+        a, b = segments(unit, roles)
+        seg_role = roles[a]
+        for role in (TRAIN, VALIDATION, CONFORMAL):
+            pick = seg_role == role
+            if pick.any():
+                windows[role] = make_windows(x, a[pick], b[pick], cfg.window, cfg.stride, y)
     train = windows.get(TRAIN)
     cfg = cfg.sized(0 if train is None else len(train), n_fit)
     keep = [c for c in ("unit", "cycle", "t", TARGET) if c in frame.columns]

@@ -26,7 +26,10 @@ its **last** row (the prediction is made with the data seen so far).
 - **Every row** (``pad_all=True``, the flight-level models of :mod:`.flights`): every segment
   is left-padded with ``L - 1`` copies of its first row, so that each row ends a window and
   gets a prediction (a window over flights is long compared with a unit's life: dropping its
-  first ``L - 1`` flights would drop a third of a unit).
+  first ``L - 1`` flights would drop a third of a unit). A flight model's segments are whole
+  units, as at prediction: each window takes the role of its last flight
+  (:func:`prognostics.training.prepare`), so a training window that follows a validation
+  flight reads that flight's inputs, not a padded history.
 """
 
 from __future__ import annotations
@@ -75,6 +78,14 @@ class Windows:
         if self.length == 1:
             return self.base[s]
         return self.view().transpose(1, 2)[s].contiguous().transpose(1, 2)
+
+    def subset(self, pick: np.ndarray) -> Windows:
+        """The windows where the boolean ``pick`` (one per window) is true, over the same
+        ``base``."""
+        keep = torch.as_tensor(np.flatnonzero(pick), dtype=torch.int64)
+        tgt = None if self.target is None else self.target[keep]
+        return Windows(self.base, self.starts[keep], self.length, self.rows[np.asarray(pick)],
+                       tgt)
 
     def to(self, device) -> Windows:
         """The same windows on ``device`` (the base moves once; windows stay views)."""

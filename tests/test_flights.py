@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from engine_model.channels import THETA_NAMES
 from engine_model.validation import InputError
@@ -118,6 +119,28 @@ def test_windows_padded_at_every_row():
     np.testing.assert_array_equal(first, np.repeat(x[[0]].T, 3, axis=1))
     fourth = w.batch(np.array([4]))[0].numpy()  # row 4 = second row of segment 2
     np.testing.assert_array_equal(fourth, x[[3, 3, 4]].T)
+
+
+def test_a_flight_models_windows_read_the_whole_history_whatever_the_role(make_features):
+    """With validation on flights, a training window that follows a validation flight reads
+    that flight's inputs (the unit's real history, as at prediction), and every flight of the
+    development units ends exactly one window, of its own role."""
+    df, meta = make_features()
+    prep = prepare(df, meta, TrainConfig(model="tcn", inputs="data-driven", window=4,
+                                         validation="flights", seed=1))
+    assert prep.config.validation == "flights"
+    train, val = prep.windows[TRAIN], prep.windows[VALIDATION]
+    assert (prep.roles[train.rows] == TRAIN).all() and (prep.roles[val.rows] == VALIDATION).all()
+    used = np.flatnonzero(np.isin(prep.roles, (TRAIN, VALIDATION)))
+    assert sorted([*train.rows, *val.rows]) == list(used)
+    unit = prep.frame["unit"].to_numpy()
+    v = int(val.rows[0])
+    after = np.flatnonzero(train.rows == v + 1)
+    assert unit[v + 1] == unit[v] and after.size == 1  # a training flight follows it
+    window = train.batch(torch.as_tensor(after))[0].numpy()
+    flight_v = val.batch(torch.as_tensor([0]))[0].numpy()[:, -1]  # flight v's own inputs
+    np.testing.assert_array_equal(window[:, -2], flight_v)
+    assert not np.array_equal(window[:, -2], window[:, -1])  # not a padded copy
 
 
 def _fake_hi(monkeypatch):
