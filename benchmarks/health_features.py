@@ -148,6 +148,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     from engine_model.datasets.dispatch import read_dataset
     from engine_model.datasets.fingerprint import table_fingerprint
+    from prognostics.baseline import health_effects
     from prognostics.cross_validation import unit_folds
     from prognostics.flights import to_samples
     from prognostics.floors import FLOORS, floor_predictions
@@ -161,9 +162,11 @@ def main(argv=None) -> int:
             build_features(a.features)
         df, meta = read_dataset(a.features)
         fp = table_fingerprint(df, meta)
-        flights = flight_frame(df)
+        # the floors read the health index of the model θ̂ was calibrated with, as the
+        # networks do (training.rows_for)
+        flights = flight_frame(df, effects=health_effects(meta))
         dev, test = [int(u) for u in meta["dev_units"]], [int(u) for u in meta["test_units"]]
-        done = {r["key"]: r for r in read_runs(cache)}
+        done = {r["key"]: r for r in consistent(read_runs(cache), fp)}
         folds = unit_folds(dev, FOLDS, FOLD_SEED)
         cv_seeds = [int(s) for s in a.cv_seeds.split(",")]
         test_seeds = [int(s) for s in a.test_seeds.split(",")]
@@ -180,7 +183,7 @@ def main(argv=None) -> int:
             body = {"data": fp, "stage": stage, "fold": k, "floors": list(FLOORS)}
             key = run_key(body, KEY_LENGTH)
             if key not in done:
-                rec = {"key": key, "kind": "floors", "stage": stage, "fold": k,
+                rec = {"key": key, "kind": "floors", "stage": stage, "fold": k, "data": fp,
                        "held": [int(u) for u in held],
                        "floors": {n: scores(to_samples(p, samples))
                                   for n, p in floor_predictions(dev_fl, held_fl).items()}}
@@ -195,9 +198,9 @@ def main(argv=None) -> int:
                     continue
                 units = None if stage == "test" else train_units
                 res = train_predict(flights, meta, cfg, seeds, units, held, samples)
-                rec = {"key": key, "kind": "model", "stage": stage, "fold": k,
-                       "held": [int(u) for u in held], "model": model, "inputs": inputs,
-                       "window": window, **res}
+                rec = {"key": key, "kind": "model", "stage": stage, "fold": k, "data": fp,
+                       "seeds": list(seeds), "held": [int(u) for u in held], "model": model,
+                       "inputs": inputs, "window": window, **res}
                 append_run(cache, rec)
                 done[key] = rec
                 print(f"[{time.strftime('%H:%M:%S')}] {stage} fold {k} {model} {inputs} "
@@ -209,6 +212,29 @@ def main(argv=None) -> int:
 
 def _fmt(x, nd=2) -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
+
+
+def consistent(runs: list[dict], fingerprint: str | None = None) -> list[dict]:
+    """``runs`` when they are one benchmark's: a single data fingerprint (``fingerprint``
+    when given; records cached before they carried it have none and count as the same),
+    at most one record per candidate, stage and fold. A ``--work`` reused after the
+    features or the seeds changed would otherwise pool old and new runs into the choice and
+    the table: refused."""
+    seen = {r["data"] for r in runs if r.get("data")}
+    if fingerprint is not None:
+        seen.add(fingerprint)
+    if len(seen) > 1:
+        raise SystemExit("error: the cache holds runs on other data (features changed); "
+                         "give another --work")
+    count: dict = {}
+    for r in runs:
+        name = (r["model"], r["inputs"], r["window"]) if r["kind"] == "model" else "floors"
+        k = (name, r["stage"], r["fold"])
+        count[k] = count.get(k, 0) + 1
+        if count[k] > 1:
+            raise SystemExit(f"error: the cache holds two {r['stage']} runs of {name} on fold "
+                             f"{r['fold']} (other seeds?); give another --work")
+    return runs
 
 
 def chosen_on_cv(runs: list[dict]) -> tuple | None:
@@ -229,6 +255,9 @@ def report(runs: list[dict], results: Path, cache: Path) -> None:
     """The choice (CV) and the test table; Markdown, CSV and the cache to ``results``."""
     from prognostics.floors import FLOORS
 
+    runs = consistent(runs)
+    pick = chosen_on_cv(runs)
+    chosen = None if pick is None else f"{pick[0]} {pick[1]} (window {pick[2]})"
     cv = [r for r in runs if r["stage"] == "cv"]
     test = [r for r in runs if r["stage"] == "test"]
     rows = []
@@ -269,20 +298,20 @@ def report(runs: list[dict], results: Path, cache: Path) -> None:
                        u15_bias=e.get("unit15_after_onset", {}).get("mean_delta"))
         rows.append(row)
     table = pd.DataFrame(rows)
-    pick = chosen_on_cv(runs)
-    chosen = None if pick is None else f"{pick[0]} {pick[1]} (window {pick[2]})"
+    held = sorted({u for r in test for u in r["held"]})
     results.mkdir(parents=True, exist_ok=True)
     table.to_csv(results / "runs.csv", index=False, float_format="%.4g")
     lines = ["# Physics features on the ds02 fleet (issue 30)", "",
              "`python benchmarks/health_features.py` (its docstring). CV: 3 folds of whole "
              "development units, the seeds' mean prediction, RMSE over every held-out sample. "
-             "Test: trained on all development units, evaluated once on units 11, 14, 15; "
-             "'seeds' is the mean ± std of the single-seed models, the other columns are the "
-             "seeds' mean prediction.", "",
+             "Test: trained on all development units, evaluated once on units "
+             f"{', '.join(map(str, held))}; 'seeds' is the mean ± std of the single-seed "
+             "models, the other columns are the seeds' mean prediction.", "",
              f"Chosen on CV (lowest CV RMSE among the hybrid candidates): **{chosen}**. "
              "The protocol scores on the test units only the chosen candidate, the "
              "data-driven reference and the floors; any other row's test figures were made "
-             "with `--all-on-test`: post hoc, not results of the protocol.", "",
+             "with `--all-on-test`: post hoc, not results of the protocol, and marked "
+             "(post hoc).", "",
              "| predictor | CV RMSE | test RMSE, seeds | test RMSE | before onset | after onset "
              "| RUL <= 30 | last cycle | horizon | unit 15 after onset (bias) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -290,6 +319,8 @@ def report(runs: list[dict], results: Path, cache: Path) -> None:
         seeds = "-" if "test_rmse_seeds" not in r else \
             f"{r['test_rmse_seeds']:.2f} ± {r['test_rmse_seeds_std']:.2f}"
         mark = " (chosen)" if r["predictor"] == chosen else ""
+        if not mark and "test_rmse_seeds" in r and " data-driven " not in r["predictor"]:
+            mark = " (post hoc)"
         truth = " (true θ)" if r["truth"] else ""
         lines.append(
             f"| {r['predictor']}{truth}{mark} | {_fmt(r.get('cv_rmse'))} | {seeds} | "

@@ -63,8 +63,17 @@ HYBRIDS = ("physics", "health")
 
 
 def fleet_features(work: Path, seed: int, rate: float) -> Path:
+    """The calibrated fleet ``seed`` under ``work`` (simulated and calibrated when absent);
+    a fleet already there at another sample rate is refused, not reused."""
+    from engine_model.datasets import read_metadata
+
     fleet, features = work / f"fleet-{seed}", work / f"fleet-{seed}-features"
-    if not fleet.exists():
+    if fleet.exists():
+        had = (read_metadata(fleet) or {}).get("sample_rate_hz")
+        if had is not None and not np.isclose(float(had), rate):
+            raise SystemExit(f"error: {fleet} was simulated at {had:g} Hz, not --rate {rate:g}"
+                             "; give another --work")
+    else:
         hyprog("simulate", "--preset", "ds02-study", "--rate", str(rate), "--seed", str(seed),
                "--out", fleet, announce=True)
     hyprog("calibrate", fleet, "--method", "ukf", "--jobs", "2", "--out", features,
@@ -75,6 +84,7 @@ def fleet_features(work: Path, seed: int, rate: float) -> Path:
 def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict) -> None:
     from engine_model.datasets.dispatch import read_dataset
     from engine_model.datasets.fingerprint import table_fingerprint
+    from prognostics.baseline import health_effects
     from prognostics.flights import to_samples
     from prognostics.floors import FLOORS, floor_predictions
     from prognostics.train_config import TrainConfig
@@ -82,7 +92,8 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
 
     df, meta = read_dataset(fleet_features(work, seed, rate))
     fp = table_fingerprint(df, meta)
-    flights = flight_frame(df)
+    # the floors read the health index of the model θ̂ was calibrated with, as the networks do
+    flights = flight_frame(df, effects=health_effects(meta))
     dev, test = [int(u) for u in meta["dev_units"]], [int(u) for u in meta["test_units"]]
     order = [int(u) for u in np.random.default_rng(seed).permutation(dev)]
     samples = df[df["unit"].isin(test)]

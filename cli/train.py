@@ -21,8 +21,9 @@ from prognostics.choices import MODEL_KINDS, NORMALISATIONS, SCHEDULES, VALIDATI
 
 INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
                "trend, or any model on a table with one row per cycle such as C-MAPSS, also "
-               "physics, hybrid-health), groups joined by '+' (w, xs, xs_hat, xv, xv_hat, "
-               "theta_hat, theta, cmapss; health, theta_rel, mode, health_true likewise), "
+               "physics, hybrid-health, physics-mode, health-mode), groups joined by '+' "
+               "(w, xs, xs_hat, xv, xv_hat, theta_hat, theta, cmapss; health, theta_rel, "
+               "mode, health_true likewise), "
                "explicit columns (alt,Mach,...), or a set plus columns (hybrid+Ps30,phi).")
 
 

@@ -66,6 +66,12 @@ NOT_AGGREGATED = ("t",)
 MARGINS = dict(zip(("SmFan", "SmLPC", "SmHPC", "EGT"), HEALTH_STEMS[1:], strict=True))
 
 
+def unit_lives(flights: pd.DataFrame) -> pd.Series:
+    """End of life of every unit of a flight table: its last cycle plus that cycle's RUL."""
+    last = flights.groupby("unit", sort=True)[["cycle", TARGET]].last()
+    return last["cycle"] + last[TARGET]
+
+
 def one_per_cycle(df: pd.DataFrame) -> bool:
     """True when no two rows share a unit and a cycle."""
     return not df.duplicated(list(KEYS)).any()

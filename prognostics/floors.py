@@ -30,14 +30,9 @@ from engine_model.validation import InputError
 
 from .baseline import trend_per_flight
 from .features import TARGET
+from .flights import unit_lives
 
 FLOORS = ("life", "hi-lookup", "physics-trend")
-
-
-def unit_lives(flights: pd.DataFrame) -> pd.Series:
-    """End of life of every unit of a flight table: its last cycle plus that cycle's RUL."""
-    last = flights.groupby("unit", sort=True)[["cycle", TARGET]].last()
-    return last["cycle"] + last[TARGET]
 
 
 @dataclass(frozen=True)

@@ -67,8 +67,7 @@ from .features import (
     sort_table,
     unobservable_columns,
 )
-from .flights import flight_table, one_per_cycle
-from .floors import unit_lives
+from .flights import flight_table, one_per_cycle, unit_lives
 from .models import build_model, parameter_count
 from .scaling import CONDITION, Scaler, fit_scaler
 from .splits import (

@@ -10,8 +10,8 @@ import torch
 from engine_model.channels import THETA_NAMES
 from engine_model.validation import InputError
 from prognostics.ensemble import fit
-from prognostics.flights import causal_reference, flight_table, to_samples
-from prognostics.floors import HiLookup, floor_predictions, unit_lives
+from prognostics.flights import causal_reference, flight_table, to_samples, unit_lives
+from prognostics.floors import HiLookup, floor_predictions
 from prognostics.metrics import evaluate_predictions, phase_metrics
 from prognostics.splits import TRAIN, VALIDATION
 from prognostics.train_config import TrainConfig
