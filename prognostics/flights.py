@@ -128,9 +128,10 @@ def flight_table(df: pd.DataFrame, hi=None, ref_flights: int = REF_FLIGHTS,
                  and not out[q + "_hat"].isna().all()]
     if not estimated:
         return out
-    cols = dict(_health(theta_per_cycle(frame), hi, "_hat"))
-    if all(q in frame.columns for q in estimated):
-        cols.update(_health(theta_per_cycle(frame, suffix=""), hi, ""))
+    # ``out`` already holds each flight's mean of every column: θ per cycle is read from it
+    cols = dict(_health(theta_per_cycle(out), hi, "_hat"))
+    if all(q in out.columns for q in estimated):
+        cols.update(_health(theta_per_cycle(out, suffix=""), hi, ""))
     unit = out["unit"].to_numpy()
     rel_src = np.column_stack([out[q + "_hat"].to_numpy(float) for q in estimated]
                               + [cols["HI_hat"]])
