@@ -61,12 +61,12 @@ def adapt(
         from calibration.adaptation import write_adapted
         from calibration.adaptation.artefact import ADAPTED_MODEL
         from calibration.adaptation.data import DEFAULT_CHANNELS, MODEL_ERROR
-        from calibration.adaptation.groups import check_names
+        from calibration.adaptation.groups import check_groups
         from engine_model.datasets import read_dataset
         from engine_model.runtime.ownership import check_output
 
         check_output(out, ADAPTED_MODEL, overwrite, (data,))  # before the work, not after
-        cands = check_names(parse_list(candidates, "--candidates"))
+        cands = check_groups(parse_list(candidates, "--candidates"))
         chans = parse_list(channels, "--channels") or list(DEFAULT_CHANNELS)
         df, _meta = read_dataset(data, units=parse_units(units))
         if len(df) == 0:

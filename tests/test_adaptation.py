@@ -153,15 +153,67 @@ def test_a_candidate_enters_on_the_out_of_sample_gain_and_the_worst_condition_is
     assert not enters(OutOfSample(small, chi2={1: 8.0, 2: 11.9, 3: 10.0}), current)
 
 
-def test_judging_fewer_than_one_candidate_is_refused_and_the_cli_default_is_top():
+def test_judging_fewer_than_one_candidate_is_refused_and_the_cli_defaults_are_the_librarys():
     import inspect
+    import typing
 
+    from calibration.measurement_noise import EARLY_CYCLES
     from cli.adapt import adapt as adapt_cli
 
     with pytest.raises(ValueError, match="judge"):
         select(None, None, [], judge=0)
-    default = inspect.signature(adapt_cli).parameters["judge"].default
-    assert default == TOP == inspect.signature(adapt).parameters["judge"].default
+    cli, lib = (inspect.signature(f).parameters for f in (adapt_cli, adapt))
+    assert cli["judge"].default == TOP == lib["judge"].default
+    assert cli["early_cycles"].default == EARLY_CYCLES == lib["early_cycles"].default
+    # the help texts name the library's defaults, not a copy that drifts
+    from calibration.adaptation.data import DEFAULT_CHANNELS
+    from calibration.adaptation.groups import OPTIONAL_GROUPS, SENSOR_GROUP, STEADY_GROUPS
+
+    hints = typing.get_type_hints(adapt_cli, include_extras=True)
+
+    def help_of(name):
+        return hints[name].__metadata__[0].help
+
+    assert f"default: {','.join(DEFAULT_CHANNELS)})" in help_of("channels")
+    assert f"default: {', '.join((*STEADY_GROUPS, SENSOR_GROUP))};" in help_of("candidates")
+    assert f"also {', '.join(OPTIONAL_GROUPS)} when named" in help_of("candidates")
+
+
+def test_adapt_refuses_what_it_cannot_fit_before_any_fit():
+    """One line each, before the (long) selection starts: a channel the model does not
+    compute, a reading that is not a number, a fleet too small to hold engines out, a
+    judge below one."""
+    df = simulated_fleet(units=3, cycles=6, seed=8)
+    with pytest.raises(InputError, match="--channels: Ps31 not an output"):
+        adapt(df.assign(Ps31=1.0), (*CHANNELS, "Ps31"), CANDIDATES)
+    nan = df.copy()
+    nan.loc[7, "T30"] = np.nan
+    with pytest.raises(InputError, match=r"unit 2, cycle 2: column T30 is not a finite"):
+        adapt(nan, CHANNELS, CANDIDATES)
+    with pytest.raises(InputError, match="2 engine\\(s\\) .* 3 folds"):
+        adapt(simulated_fleet(units=2, cycles=20, seed=8), CHANNELS, CANDIDATES)
+    with pytest.raises(InputError, match="judge must be at least 1"):
+        adapt(df, CHANNELS, CANDIDATES, judge=0)
+
+
+def test_a_record_names_its_optional_candidates_and_is_strict_json(tmp_path):
+    """``assess`` and the design-point benchmark rebuild a record's candidate groups: the
+    optional ones (``duct_loss``, ...) among them; a chosen name no group has, or a chosen
+    parameter without a value, is refused; a number that could not be computed is null."""
+    rec = {"channels": list(CHANNELS),
+           "selection": {"chosen": ["design_scaling_HPC", "duct_loss", "sensor_gain_P15"]},
+           "parameters": [{"candidate": "design_scaling_HPC", "parameter": "eff",
+                           "value": 0.0}]}
+    names = {c.name for c in record_groups(rec, CHANNELS)}
+    assert {"design_scaling_HPC", "duct_loss", "sensor_gain_P15"} <= names
+    with pytest.raises(InputError, match="chosen candidate\\(s\\) no_such"):
+        record_groups({**rec, "selection": {"chosen": ["no_such"]}}, CHANNELS)
+    df = simulated_fleet(units=6, cycles=12, seed=4)
+    with pytest.raises(InputError, match="no value of design_scaling_HPC.flow"):
+        assess(df, rec)
+    out = write_adapted({"effects": [], "selection": {"worst": float("nan")}},
+                        tmp_path / "a.json")
+    assert json.loads(out.read_text())["selection"]["worst"] is None
 
 
 def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
@@ -211,7 +263,9 @@ def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_mode
     assert all(c.startswith("design_scaling") for c in res.selection.chosen)
     # one step, two candidates judged with each condition left out (--judge 2), recorded
     assert sum(1 for m in lines if m.startswith("  ")) == 2, lines
-    assert res.record()["data"]["judge"] == 2
+    rec = res.record()
+    assert rec["data"]["judge"] == 2 and rec["selection"]["stopped"] == "no gain"
+    assert rec["data"]["unit_list"] == list(range(1, 13)) and rec["data"]["seed"] == 0
     # with the right model every condition left out is predicted within a few of its own
     # std (the posterior's and the noise's; 42 conditions x channels)
     assert max(worst_z(res.selection.after).values()) < 4.0
@@ -297,6 +351,9 @@ def test_adapt_cli_refuses_bad_input_in_one_line(tmp_path):
     r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json"),
                             "--candidates", "bleed"])
     assert_user_error(r, "unknown candidate(s) bleed")
+    r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json"),
+                            "--candidates", "map_scaling,map_scaling"])
+    assert_user_error(r, "map_scaling named twice")
     assert not (tmp_path / "a.json").exists()
 
 

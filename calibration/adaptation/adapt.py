@@ -18,7 +18,7 @@ from engine_model.validation import InputError
 from ..measurement_noise import EARLY_CYCLES
 from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
 from .fleet_fit import FleetData, FleetFit, Shared, fit_fleet
-from .groups import SENSOR_GROUP, build_groups
+from .groups import OPTIONAL_GROUPS, SENSOR_GROUP, STEADY_GROUPS, bounds, build_groups
 from .selection import (
     TOP,
     OutOfSample,
@@ -33,16 +33,20 @@ from .selection import (
 
 def fitted_parameters(groups, chosen, fit) -> list[dict]:
     """Every parameter of the ``chosen`` candidates among ``groups`` in ``fit``: candidate,
-    parameter, value, posterior std, valid range, and whether it sits on a bound of that
-    range (``at_bound``)."""
+    parameter, value, posterior std, the range the fit bounded it to (:func:`.groups.bounds`:
+    the valid range, closed at the neutral value on a one-sided parameter), and whether it
+    sits on a bound of that range (``at_bound``). The std of a parameter on a bound is the
+    curvature's at the optimum, as if the bound were not there: it says how far the data
+    would move the parameter, not that the bound is uncertain."""
     std = fit.std
     out, k = [], 0
     for c in groups:
         if c.name not in chosen:
             continue
+        lows, highs = bounds(c)
         for j, q in enumerate(c.params):
             v = float(fit.phi[c.index[j]])
-            lo, hi = (float(x) for x in c.valid[j])
+            lo, hi = float(lows[j]), float(highs[j])
             out.append({"candidate": c.name, "parameter": q, "value": v,
                         "std": float(std[k]) if k < len(std) else float("nan"),
                         "valid": [lo, hi],
@@ -106,6 +110,7 @@ class Adaptation:
             "selection": {
                 "steps": [vars(s) for s in sel.steps],
                 "chosen": list(sel.chosen),
+                "stopped": sel.stopped,
                 "chi2_in_sample": {"before": sel.base_fit.chi2_per_sample(),
                                    "after": sel.fit.chi2_per_sample()},
                 "chi2_condition_out": {"before": sel.before.chi2_out,
@@ -140,47 +145,72 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     from calibration.discrepancy.candidates import CandidateModel
 
     t0 = time.perf_counter()
+    if judge < 1 or engine_folds < 2:
+        raise InputError(f"judge must be at least 1 and engine folds at least 2, got {judge} "
+                         f"and {engine_folds}")
     data, noise = fleet_data(df, channels, early_cycles, units, source=source,
                              model_error=model_error)
-    if len(np.unique(data.condition)) < 2:
-        raise InputError(f"{source}: one operating condition in the early-life rows; the "
-                         "adaptation leaves each condition out in turn and needs two or more "
-                         "(C-MAPSS FD002 and FD004 have six)")
+    check_fleet(data, source, engine_folds)
     groups = build_groups(data.channels, candidates)
     model = model or CandidateModel(groups)
     sel = select(model, data, groups, log, judge=judge)
     before = engines_out(model, data, Shared.none(), sel.base_fit, engine_folds, seed)
     after = engines_out(model, data, shared_of(groups, sel.chosen), sel.fit, engine_folds,
                         seed)
-    early = df[df["cycle"] <= early_cycles]
+    early = df[(df["cycle"] <= early_cycles) & df["unit"].isin(data.units)]
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
-            "samples": len(data.y), "early_cycles": early_cycles, "model_error": model_error,
-            "judge": judge}
+            "unit_list": list(data.units), "samples": len(data.y),
+            "early_cycles": early_cycles, "model_error": model_error, "judge": judge,
+            "candidates": sorted({g.registry_name if not g.name.startswith(SENSOR_GROUP)
+                                  else SENSOR_GROUP for g in groups}),
+            "engine_folds": engine_folds, "seed": seed}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
 
 
-def record_groups(record: dict, channels) -> list:
-    """The candidate groups of a record's chosen candidates (:mod:`.groups`), for the
-    record's ``channels``, in the library's order."""
+def check_fleet(data: FleetData, source: str, engine_folds: int = 2) -> None:
+    """Refuse, before any fit, a fleet the adaptation cannot judge: fewer than two operating
+    conditions (each is left out in turn) or fewer engines than ``engine_folds`` (engines are
+    held out in folds)."""
+    if len(np.unique(data.condition)) < 2:
+        raise InputError(f"{source}: one operating condition in the early-life rows; the "
+                         "adaptation leaves each condition out in turn and needs two or more "
+                         "(C-MAPSS FD002 and FD004 have six)")
+    if data.n_units < engine_folds:
+        raise InputError(f"{source}: {data.n_units} engine(s) in the early-life rows; the "
+                         f"adaptation holds engines out in {engine_folds} folds and needs at "
+                         f"least {engine_folds}")
+
+
+def record_groups(record: dict, channels, source: str = "the adapted model") -> list:
+    """The candidate groups of a record's chosen candidates (:mod:`.groups`, the optional
+    ones included), for the record's ``channels``, in the library's order; a chosen name
+    no group has is refused."""
     chosen = set(record["selection"]["chosen"])
 
     def group_of(c) -> str:
         return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
 
-    names = sorted({group_of(c) for c in build_groups(channels) if c.name in chosen})
+    every = build_groups(channels, (*STEADY_GROUPS, *OPTIONAL_GROUPS, SENSOR_GROUP))
+    unknown = sorted(chosen - {c.name for c in every})
+    if unknown:
+        raise InputError(f"{source}: chosen candidate(s) {', '.join(unknown)} are not "
+                         f"candidates of the channels {', '.join(channels)}")
+    names = sorted({group_of(c) for c in every if c.name in chosen})
     return build_groups(channels, names) if names else []
 
 
 def assess(df: pd.DataFrame, record: dict, units=None, model=None,
            source: str = "data", design=None) -> tuple[FleetFit, OutOfSample]:
     """An adapted model's record (:mod:`.artefact`) refitted to the early life of ``units`` of
-    ``df`` with its own choices (channels, early cycles, model error, chosen candidates),
-    started at its recorded values: the fit and the errors with each condition left out,
-    with their std (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on
-    it gives the std that a record written before ``std_pct_condition_out`` existed lacks;
-    on other engines of the same engine type, how the adaptation holds there. ``model``: a
-    prebuilt :class:`~calibration.discrepancy.candidates.CandidateModel` of the record's
-    candidate groups (tests); ``design``: the engine design to build it on
+    ``df`` with its own choices (channels, early cycles, model error, chosen candidates; a
+    record without ``data.model_error`` was fitted with the noise alone, as every record was
+    before the option existed, and is refitted so), started at its recorded values: the fit
+    and the errors with each condition left out, with their std
+    (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on it gives the std
+    that a record written before ``std_pct_condition_out`` existed lacks; on other engines
+    of the same engine type, how the adaptation holds there. ``model``: a prebuilt
+    :class:`~calibration.discrepancy.candidates.CandidateModel` of the record's candidate
+    groups (tests); ``design``: the engine design to build it on
     (:func:`engine_model.physics.design.design_engine`; default the model's own)."""
     from calibration.discrepancy.candidates import CandidateModel
 
@@ -188,15 +218,18 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
     chosen = list(record["selection"]["chosen"])
     data, _ = fleet_data(df, tuple(record["channels"]),
                          info.get("early_cycles", EARLY_CYCLES), units, source=source,
-                         model_error=info.get("model_error", MODEL_ERROR))
-
+                         model_error=info.get("model_error", 0.0))
+    check_fleet(data, source)
     groups = record_groups(record, data.channels)
-    model = model or CandidateModel(groups, design=design)
     value = {(p["candidate"], p["parameter"]): p["value"] for p in record["parameters"]}
-    phi = np.zeros(model.n_phi)
+    phi = np.zeros(sum(len(c.params) for c in groups))
     for c in groups:
         for j, q in enumerate(c.params):
+            if c.name in chosen and (c.name, q) not in value:
+                raise InputError(f"the adapted model: no value of {c.name}.{q}, a parameter "
+                                 "of a chosen candidate")
             phi[c.index[j]] = value.get((c.name, q), 0.0)
+    model = model or CandidateModel(groups, design=design)
     shared = shared_of(groups, chosen)
     fit = fit_fleet(model, data, shared, phi)
     return fit, condition_out(model, data, shared, fit)

@@ -6,9 +6,15 @@ existing file is replaced only if it is an adapted model, or with ``--overwrite`
     {"format": "hyprog-adapted-model", "version": 1,
      "effects": ["design_scaling:component=HPC,eff=-0.0031,flow=0.0042", ...],
      "parameters": [{"candidate", "parameter", "value", "std", "valid", "at_bound"}, ...],
-     "channels": [...], "early_cycles": 20, "noise": {condition: {channel: std}},
-     "data": {"path", "fingerprint", "units", "samples"},
-     "selection": {...}, "hyprog_version": "..."}
+     "channels": [...], "noise": {condition: {channel: std}},
+     "data": {"path", "fingerprint", "units", "unit_list", "samples", "early_cycles",
+              "model_error", "judge", "candidates", "engine_folds", "seed"},
+     "selection": {...}, "seconds": ..., "hyprog_version": "..."}
+
+(records written before a key existed lack it; :func:`calibration.adaptation.assess` reads
+a missing ``model_error`` as the noise alone, with which those records were fitted). A
+number that could not be computed (no converged sample at a condition) is written as
+``null``: the file is strict JSON.
 
 ``effects`` are effect specifications (:func:`engine_model.physics.effects.parse_effect_spec`)
 held at the fitted values: the model that ``calibrate``, ``discover`` and ``pipeline`` build
@@ -24,6 +30,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from engine_model.datasets.jsonable import jsonable
 from engine_model.physics.effects import EffectSpecError, parse_effect_spec
 from engine_model.runtime.atomic import atomic_output
 from engine_model.runtime.ownership import OutputKind
@@ -64,7 +71,7 @@ def write_adapted(record: dict, out: Path, overwrite: bool = False, inputs=()) -
     """Write ``record`` (with ``format``/``version`` set) to ``out`` atomically."""
     body = {"format": FORMAT, "version": VERSION, **record}
     with atomic_output(out, ADAPTED_MODEL, overwrite, inputs) as tmp:
-        tmp.write_text(json.dumps(body, indent=1, sort_keys=False) + "\n")
+        tmp.write_text(json.dumps(jsonable(body), indent=1, allow_nan=False) + "\n")
     return Path(out)
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from engine_model.channels import W_NAMES
+from engine_model.channels import OUTPUT_NAMES, W_NAMES
 from engine_model.validation import InputError
 
 from ..measurement_noise import EARLY_CYCLES, check_model_error, noise_from_data, with_model_error
@@ -52,6 +52,10 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
     twice = sorted({c for c in channels if list(channels).count(c) > 1})
     if twice:
         raise InputError(f"{source}: channel(s) {', '.join(twice)} listed twice")
+    not_model = [c for c in channels if c not in OUTPUT_NAMES]
+    if not_model:
+        raise InputError(f"--channels: {', '.join(not_model)} not an output of the engine "
+                         f"model (its outputs: {', '.join(OUTPUT_NAMES)})")
     missing = [c for c in (*W_NAMES, *channels) if c not in df.columns]
     if missing:
         raise InputError(f"{source}: missing column(s) {', '.join(missing)}")
@@ -63,6 +67,14 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
     early = df[df["cycle"] <= early_cycles].sort_values(["unit", "cycle"], kind="stable")
     if early.empty:
         raise InputError(f"{source}: no row with cycle <= {early_cycles}")
+    values = early[[*W_NAMES, *channels]].to_numpy(float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i, j = (int(v[0]) for v in np.nonzero(bad))
+        row = early.iloc[i]
+        raise InputError(f"{source}: unit {int(row['unit'])}, cycle {int(row['cycle'])}: "
+                         f"column {[*W_NAMES, *channels][j]} is not a finite number; the "
+                         "adaptation needs every early-life reading")
     noise = noise_from_data(early, channels, condition, early_cycles, source)
     cond = early[condition].to_numpy()
     sigma = noise.loc[cond, list(channels)].to_numpy(float)

@@ -20,13 +20,14 @@ The negative log posterior (``e`` the whitened residual)::
 is minimised by Gauss-Newton with Levenberg-Marquardt damping (the damping scaled by the
 matrix's diagonal, Marquardt 1963; Nocedal & Wright 2006, sec. 10.3),
 steps projected onto the bounds (a shared parameter at a bound that the step pushes out is
-held there for that step). The normal equations are *bordered block-diagonal* (one small
-block per engine, a dense border for the shared parameters), solved by the Schur
-complement on the shared block (Triggs et al., "Bundle adjustment - a modern synthesis",
-2000, sec. 6.1), so the cost is linear in the
-number of engines. The Gauss-Newton matrix at the optimum, inverted, is the posterior
-covariance; the shared block of it (the inverse Schur complement) is the uncertainty of the
-adaptation, the health of every engine marginalised out.
+held there for that step; so is an engine's health parameter at a bound of the calibration
+envelope, ``engine_model.validation.ENVELOPE.theta``). The normal equations are *bordered
+block-diagonal* (one small block per engine, a dense border for the shared parameters),
+solved by the Schur complement on the shared block (Triggs et al., "Bundle adjustment - a
+modern synthesis", 2000, sec. 6.1), so the cost is linear in the number of engines. The
+Gauss-Newton matrix at the optimum, inverted, is the posterior covariance; the shared block
+of it (the inverse Schur complement) is the uncertainty of the adaptation, the health of
+every engine marginalised out.
 """
 
 from __future__ import annotations
@@ -260,7 +261,9 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
 
 def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> np.ndarray:
     """Std (m,) of the difference between the mean prediction of every channel over the
-    ``usable`` samples of ``data`` and the mean of their readings, under the posterior of
+    ``usable`` samples of ``data`` (samples of **one** operating condition, as
+    :func:`.selection.condition_out` passes them: the model-error term below treats them as
+    sharing one error) and the mean of their readings, under the posterior of
     ``fit`` (Laplace, :class:`FleetFit`), the readings' noise and the model's own error.
 
     ``ev`` is the model's evaluation of ``data`` at ``fit``'s parameters with derivatives;

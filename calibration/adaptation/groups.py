@@ -45,8 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.discrepancy.candidates import STEADY_DEFAULT, Candidate, _make, components
-from engine_model.physics.effects import parse_effect_spec, registry
+from calibration.discrepancy.candidates import STEADY_DEFAULT, Candidate, instantiate, number
 from engine_model.validation import InputError
 
 #: The levels: always fitted (:mod:`.selection`), not selected.
@@ -70,15 +69,21 @@ def _prior(effect, params) -> np.ndarray:
     return np.asarray(out, float)
 
 
-def check_names(names=None) -> tuple:
-    """The candidate names to use (default: every group but :data:`OPTIONAL_GROUPS`), each
-    checked."""
+def check_groups(names=None) -> tuple:
+    """The candidate groups to use (default: every group but :data:`OPTIONAL_GROUPS`), each
+    checked: known, named once, at least one. (Group names, not the discrepancy loop's
+    effect names: :func:`calibration.discrepancy.candidates.check_names` checks those.)"""
     known = (*STEADY_GROUPS, *OPTIONAL_GROUPS, SENSOR_GROUP)
     names = tuple(names) if names is not None else (*STEADY_GROUPS, SENSOR_GROUP)
+    if not names:
+        raise InputError("--candidates: empty list")
     unknown = [n for n in names if n not in known]
-    if unknown or not names:
-        raise InputError(f"--candidates: unknown candidate(s) {', '.join(unknown) or '(none)'}"
-                         f"; known: {', '.join(known)}")
+    if unknown:
+        raise InputError(f"--candidates: unknown candidate(s) {', '.join(unknown)}; known: "
+                         f"{', '.join(known)}")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"--candidates: {', '.join(twice)} named twice")
     return names
 
 
@@ -86,30 +91,22 @@ def build_groups(channels, names=None) -> list[Candidate]:
     """Every candidate of ``names`` (registry names of :data:`STEADY_GROUPS` and
     ``sensor_gain``; default all), with ``index`` into one global ``phi`` and each
     candidate's ``prior`` attached."""
-    names = check_names(names)
+    names = check_groups(names)
     out = []
     for n in (*STEADY_GROUPS, *OPTIONAL_GROUPS):
-        if n not in names:
-            continue
-        cls = registry()[n]
-        if "component" in cls.options:  # one instance per component the effect exists for
-            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in components(cls)]
-        else:
-            out.append(_make(parse_effect_spec(n)))
+        if n in names:
+            out += instantiate(n)
     if SENSOR_GROUP in names:
-        for ch in channels:
-            c = _make(parse_effect_spec(f"sensor_bias:channel={ch}"), ch)
+        for c in instantiate("sensor_bias", channels):
+            ch = c.channel
             keep = [i for i, q in enumerate(c.params) if q == "gain"]
             c.params = tuple(c.params[i] for i in keep)
             c.lower, c.upper, c.valid = c.lower[keep], c.upper[keep], c.valid[keep]
             c.fixed = ("offset",)
             c.name = f"{SENSOR_GROUP}_{ch}"
             out.append(c)
-    k = 0
-    for c in out:
-        c.index = np.arange(k, k + len(c.params))
+    for c in number(out):
         c.prior = _prior(c.effect, c.params)
-        k += len(c.params)
     return out
 
 

@@ -24,7 +24,10 @@ Learning*, 2nd ed., sec. 3.3.2 and 7.10):
 2. *judge*: the ``judge`` best (default :data:`TOP`) are refitted fully and scored by
    :func:`condition_out`;
 3. the best enters only if it lowers ``chi2_out`` by at least :data:`MIN_GAIN` (relative);
-   otherwise the selection stops. Nothing is fitted per operating point: every candidate is
+   otherwise the selection stops. It also stops when no candidate is left or after
+   ``max_steps`` steps (8; the committed FD002 model used all eight: seven entered and the
+   eighth was refused), and says why (:attr:`Selection.stopped`). Nothing is fitted per
+   operating point: every candidate is
    one set of numbers for the whole envelope. The worst condition left out (the largest
    per-condition ``chi2``, :attr:`OutOfSample.worst`) is reported at every step beside the
    sum. A guard that let a candidate in only if it did not raise the worst condition was
@@ -150,7 +153,8 @@ class Step:
 @dataclass
 class Selection:
     """The chosen candidates (in order of entry), the final fit on every sample, the
-    out-of-sample error before (no candidate) and after, and the steps."""
+    out-of-sample error before (no candidate) and after, the steps, and why the selection
+    stopped (``"no gain"``, ``"no candidate left"`` or ``"max_steps"``)."""
 
     chosen: list
     fit: FleetFit
@@ -158,6 +162,7 @@ class Selection:
     after: OutOfSample
     base_fit: FleetFit
     steps: list = field(default_factory=list)
+    stopped: str = "no gain"
 
 
 def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
@@ -182,6 +187,7 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
         say(f"levels ({', '.join(chosen)}): chi2 in {fit.chi2_per_sample():.3g}, out of "
             f"sample {oos.chi2_out:.3g}, worst condition {oos.worst:.3g}")
     steps = []
+    stopped = "max_steps"
     for _ in range(max_steps):
         ranked = []
         for c in groups:
@@ -201,17 +207,22 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
             if best is None or o.chi2_out < best[2].chi2_out:
                 best = (name, full, o)
         if best is None:
+            stopped = "no candidate left"
+            say("stop: no candidate left")
             break
         name, full, o = best
         entered = enters(o, oos)
         steps.append(Step(name, full.chi2_per_sample(), o.chi2_out, o.worst, entered))
         if not entered:
+            stopped = "no gain"
             say(f"stop: {name} does not lower the out-of-sample error by {MIN_GAIN:.0%}")
             break
         chosen.append(name)
         fit, oos = full, o
         say(f"+ {name}")
-    return Selection(chosen, fit, before, oos, base_fit, steps)
+    else:
+        say(f"stop: {max_steps} steps, the most the selection takes")
+    return Selection(chosen, fit, before, oos, base_fit, steps, stopped)
 
 
 def engines_out(model, data: FleetData, shared: Shared, start: FleetFit, folds: int = 3,

@@ -147,6 +147,27 @@ def components(cls) -> tuple:
     return tuple(getattr(cls, "MOVES", None) or COMPONENT_MODS)
 
 
+def instantiate(name: str, sensors=()) -> list[Candidate]:
+    """The candidates of one registered effect ``name``: one per channel of ``sensors`` for a
+    sensor effect, one per component (:func:`components`) for a per-component effect, else
+    one."""
+    cls = registry()[name]
+    if issubclass(cls, SensorEffect):
+        return [_make(parse_effect_spec(f"{name}:channel={c}"), c) for c in sensors]
+    if "component" in cls.options:  # map adaptation: one instance per component
+        return [_make(parse_effect_spec(f"{name}:component={c}")) for c in components(cls)]
+    return [_make(parse_effect_spec(name))]
+
+
+def number(candidates: list[Candidate]) -> list[Candidate]:
+    """``candidates`` with ``index`` set: consecutive slices of one global ``phi``."""
+    k = 0
+    for c in candidates:
+        c.index = np.arange(k, k + len(c.params))
+        k += len(c.params)
+    return candidates
+
+
 def build_candidates(names=None, sensors=(), has_cycle=True):
     """``(model_candidates, tested)``: every candidate the model carries (the library's
     steady effects, the sensor effects on every channel of ``sensors``, plus any other
@@ -164,20 +185,11 @@ def build_candidates(names=None, sensors=(), has_cycle=True):
                                       and n not in SENSOR_DEFAULT] + list(SENSOR_DEFAULT)
     out = []
     for n in carried:
-        cls = reg[n]
-        needs_cycle = any(q.kind == "context" for q in cls.params)
+        needs_cycle = any(q.kind == "context" for q in reg[n].params)
         if needs_cycle and not has_cycle:
             continue
-        if issubclass(cls, SensorEffect):
-            out += [_make(parse_effect_spec(f"{n}:channel={c}"), c) for c in sensors]
-        elif "component" in cls.options:  # map adaptation: one instance per component
-            out += [_make(parse_effect_spec(f"{n}:component={c}")) for c in components(cls)]
-        else:
-            out.append(_make(parse_effect_spec(n)))
-    k = 0
-    for c in out:
-        c.index = np.arange(k, k + len(c.params))
-        k += len(c.params)
+        out += instantiate(n, sensors)
+    number(out)
     tested = [c for c in out if c.registry_name in tested_names]
     if not tested:
         raise InputError("--candidates: no candidate effect to test on these data")
