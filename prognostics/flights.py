@@ -55,11 +55,10 @@ from engine_model.channels import THETA_NAMES
 from engine_model.validation import InputError
 
 from .baseline import theta_per_cycle
-from .features import HEALTH_STEMS, TARGET, sort_table
+from .features import HEALTH_STEMS, KEYS, TARGET, sort_table
 
 REF_FLIGHTS = 5
 MODE_SIGMAS = 3.0  # a change is a direction once it is this many standard deviations
-KEYS = ("unit", "cycle")
 LAST = (TARGET, "hs", "condition", "Fc")  # labels: the flight's last value
 NOT_AGGREGATED = ("t",)
 #: HealthIndex component -> column stem of its normalised margin
