@@ -69,10 +69,15 @@ def noise_from_data(df: pd.DataFrame, channels, condition: str = "condition",
     for cond, g in early.groupby(condition, sort=True):
         grouped = g.groupby("unit")[list(channels)]
         dev = g[list(channels)] - grouped.transform("mean")
-        dof = int((grouped.size() - 1).clip(lower=0).sum())
-        if dof < 1:
+        # per channel, its own readings: a missing one (NaN) counts in neither sum
+        dof = (grouped.count() - 1).clip(lower=0).sum(axis=0)
+        if (dof < 1).all():
             raise InputError(f"{source}: condition {cond}: no engine has two early-life "
                              f"samples (cycle <= {early_cycles}) to estimate the noise from")
+        if (dof < 1).any():
+            short = ", ".join(c for c in channels if dof[c] < 1)
+            raise InputError(f"{source}: condition {cond}: no engine has two early-life "
+                             f"readings of {short} to estimate its noise from")
         out[cond] = np.sqrt((dev ** 2).sum(axis=0) / dof)
     table = pd.DataFrame(out).T
     table.index.name = condition

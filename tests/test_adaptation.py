@@ -99,6 +99,16 @@ def test_noise_needs_two_samples_of_an_engine_and_refuses_a_flat_channel():
         noise_from_data(one, CHANNELS)
 
 
+def test_a_missing_reading_counts_in_neither_the_noise_nor_its_degrees_of_freedom():
+    df = simulated_fleet(units=6, cycles=12, seed=4)
+    gap = df.copy()
+    gap.loc[5, "T30"] = np.nan
+    table = noise_from_data(gap, CHANNELS)
+    np.testing.assert_allclose(table["T30"], noise_from_data(df.drop(index=5), CHANNELS)["T30"])
+    others = [c for c in CHANNELS if c != "T30"]
+    pd.testing.assert_frame_equal(table[others], noise_from_data(df, CHANNELS)[others])
+
+
 def test_a_channel_written_to_a_coarse_resolution_keeps_its_rounding_noise():
     df = simulated_fleet(units=6, cycles=12, seed=5)
     df["P15"] = df["P15"].round(1)  # 0.1 psia: rounding std 0.029, more than the noise
