@@ -336,14 +336,26 @@ def get_model(quiet: bool = False):
     return default_model()
 
 
+def split_items(text: str, option: str) -> list[str]:
+    """The comma-separated items of ``text``, stripped; an empty list, an empty item
+    (``"1,,2"``, ``"1,"``) or an item given twice is a one-line error naming ``option``."""
+    items = [s.strip() for s in text.split(",")]
+    if not any(items):
+        raise CliError(f"{option} {text!r}: empty list")
+    if not all(items):
+        raise CliError(f"{option} {text!r}: an empty item (two commas, or one at an end)")
+    twice = sorted({s for s in items if items.count(s) > 1})
+    if twice:
+        raise CliError(f"{option} {text}: {', '.join(twice)} listed twice")
+    return items
+
+
 def parse_list(text: str | None, option: str) -> tuple[str, ...] | None:
-    """``"a, b,c"`` -> ``("a", "b", "c")``; None when the option was not given."""
+    """``"a, b,c"`` -> ``("a", "b", "c")`` (:func:`split_items`); None when the option was
+    not given."""
     if text is None:
         return None
-    items = tuple(s.strip() for s in text.split(",") if s.strip())
-    if not items:
-        raise CliError(f"{option}: empty list")
-    return items
+    return tuple(split_items(text, option))
 
 
 def parse_units(text: str | None, option: str = "--units") -> list[int] | None:
@@ -351,14 +363,13 @@ def parse_units(text: str | None, option: str = "--units") -> list[int] | None:
     empty value is an error, not "all")."""
     if text is None:
         return None
+    items = split_items(text, option)
     try:
-        units = [int(u) for u in text.split(",") if u.strip()]
+        units = [int(u) for u in items]
     except ValueError:
         raise CliError(f"{option} {text}: expected comma-separated integers") from None
-    if not units:
-        raise CliError(f"{option} {text!r}: empty list")
     twice = sorted({u for u in units if units.count(u) > 1})
-    if twice:
+    if twice:  # "1,01"
         raise CliError(f"{option} {text}: unit(s) {', '.join(map(str, twice))} listed twice")
     return units
 

@@ -16,6 +16,7 @@ from cli.common import (
     echo_json,
     parse_list,
     parse_units,
+    split_items,
     user_errors,
 )
 
@@ -31,11 +32,9 @@ def _seeds(text: str, option: str) -> tuple[int, ...]:
             if n < 1:
                 raise CliError(f"{option} {text}: expected a count >= 1 or a list of seeds")
             return tuple(range(n))
-        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+        seeds = tuple(int(s) for s in split_items(text, option))
     except ValueError:
         raise CliError(f"{option} {text}: expected a count or comma-separated seeds") from None
-    if not seeds:
-        raise CliError(f"{option} {text!r}: no seed listed")
     twice = sorted({s for s in seeds if seeds.count(s) > 1})
     if twice:  # one network counted as two would report an ensemble spread of 0
         raise CliError(f"{option} {text}: seed(s) {', '.join(map(str, twice))} listed twice")

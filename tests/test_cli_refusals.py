@@ -60,6 +60,21 @@ def test_an_empty_unit_list_is_refused_not_read_as_all(runner, tmp_path, args):
     assert leftovers(tmp_path) == []
 
 
+@pytest.mark.parametrize("args, message", [
+    (("simulate", "--preset", "tiny", "--units", "1,,2"), "--units '1,,2': an empty item"),
+    (("simulate", "--preset", "tiny", "--units", "1,"), "--units '1,': an empty item"),
+    (("discover", TINY, "--candidates", "customer_bleed,customer_bleed"),
+     "--candidates customer_bleed,customer_bleed: customer_bleed listed twice"),
+    (("calibrate", "compare", TINY, "--methods", "ukf,ukf"), "ukf listed twice"),
+], ids=["two-commas", "trailing-comma", "candidate-twice", "method-twice"])
+def test_a_list_with_an_empty_item_or_an_item_twice_is_refused(runner, tmp_path, args,
+                                                                message):
+    out = () if "compare" in args else ("--out", tmp_path / "o")  # compare only prints
+    r = run(runner, *args, *out)
+    assert_user_error(r, message)
+    assert leftovers(tmp_path) == []
+
+
 def test_a_data_writer_does_not_replace_a_feature_table(runner, tmp_path):
     """simulate and import write data; a feature table (calibrate's output, with its
     calibration record) in their way is refused without --overwrite."""
@@ -100,7 +115,7 @@ def test_duplicated_channels_and_sensors_are_refused(runner, tmp_path):
     with pytest.raises(InputError, match="T30 listed twice"):
         fleet_data(df.assign(condition=1), ("T30", "T30"))
     r = run(runner, "calibrate", TINY, "--sensors", "T30,T30", "--out", tmp_path / "o")
-    assert_user_error(r, "sensors listed twice")
+    assert_user_error(r, "--sensors T30,T30: T30 listed twice")
     r = run(runner, "calibrate", TINY, "--method", "mhe", "--stride", "0", "--out",
             tmp_path / "o")
     assert_user_error(r, "stride 0")

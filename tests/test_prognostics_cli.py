@@ -513,11 +513,11 @@ def test_json_reports_carry_their_warnings(runner, model_dir, features_parquet, 
 def test_experiment_refuses_a_seed_listed_twice(runner, features_parquet, tmp_path):
     r = run(runner, "experiment", "paper", "--data", features_parquet, "--out",
             tmp_path / "e", "--seeds", "1,1")
-    assert_user_error(r, "--seeds 1,1", "seed(s) 1 listed twice")
+    assert_user_error(r, "--seeds 1,1: 1 listed twice")
     assert not (tmp_path / "e").exists()
     r = run(runner, "experiment", "paper", "--data", features_parquet, "--out",
             tmp_path / "e", "--seeds", ",")
-    assert_user_error(r, "--seeds ','", "no seed listed")
+    assert_user_error(r, "--seeds ','", "empty list")
     assert not (tmp_path / "e").exists()
 
 
