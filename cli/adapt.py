@@ -36,7 +36,7 @@ def adapt(
         "--early-cycles", help="Cycles of early life used (cycle <= this).", min=1)] = 20,
     units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
                                               "(default: all).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the held-out engine folds.")]
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the held-out engine folds.", min=0)]
     = 0,
     model_error: Annotated[float | None, typer.Option(
         "--model-error", help="The model's own error, a relative std added to each sample's "

@@ -225,7 +225,7 @@ def _print_point(values: dict, th: dict, s) -> None:
 @app.command(cls=PlainUsageCommand)
 def envelope(
     n: Annotated[int, typer.Option("--n", min=1, help="Number of random points.")] = 2000,
-    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed.", min=0)] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,
     quiet: Quiet = False,
 ):

@@ -175,3 +175,13 @@ def test_a_customer_bleed_that_would_add_air_is_refused():
     with pytest.raises(InputError, match=r"bleed fraction .* -0.0175 < 0"):
         parse_effect_spec("customer_bleed:f0=0.005,f_alt=-0.005")
     parse_effect_spec("customer_bleed:f0=0,f_alt=0.0046")  # the FD002 adaptation's: fine
+
+
+@pytest.mark.parametrize("args", [
+    ("model", "envelope", "--n", "2", "--seed", "-1"),
+    ("adapt", TINY, "--out", "a.json", "--seed", "-1"),
+    ("discover", TINY, "--out", "d", "--seed", "-1"),
+], ids=["envelope", "adapt", "discover"])
+def test_a_negative_seed_is_refused_in_one_line(runner, args):
+    r = run(runner, *args)
+    assert_user_error(r, "--seed", "greater than or equal to 0")
