@@ -62,7 +62,7 @@ def discover(
         "mle).")] = None,
     units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
                                               "(default: all).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.", min=0)]
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     model_effects: Annotated[Path | None, typer.Option(
         "--model-effects", help="Adapted model (hyprog adapt --out FILE): look for what that "

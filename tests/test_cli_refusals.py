@@ -180,8 +180,18 @@ def test_a_customer_bleed_that_would_add_air_is_refused():
 @pytest.mark.parametrize("args", [
     ("model", "envelope", "--n", "2", "--seed", "-1"),
     ("adapt", TINY, "--out", "a.json", "--seed", "-1"),
-    ("discover", TINY, "--out", "d", "--seed", "-1"),
-], ids=["envelope", "adapt", "discover"])
+], ids=["envelope", "adapt"])
 def test_a_negative_seed_is_refused_in_one_line(runner, args):
     r = run(runner, *args)
     assert_user_error(r, "--seed", "greater than or equal to 0")
+
+
+@pytest.mark.parametrize("overwrite", [(), ("--overwrite",)], ids=["plain", "overwrite"])
+def test_the_packaged_sample_fleet_is_never_an_output(runner, overwrite):
+    """hyprog wrote data_samples/tiny, so by the ownership rule alone a simulate could replace
+    it (an audit did, by accident): a package's folder is never an output."""
+    before = sorted(p.stat().st_size for p in TINY.rglob("*.parquet"))
+    r = run(runner, "simulate", "--preset", "tiny", "--units", "1", "--out", TINY, "--quiet",
+            *overwrite)
+    assert_user_error(r, "is inside hyprog's package", "not even with --overwrite")
+    assert sorted(p.stat().st_size for p in TINY.rglob("*.parquet")) == before

@@ -16,25 +16,29 @@ The rule
    is an input, lies inside one (``--out MODEL/model.json``) or contains one is refused, with
    or without ``--overwrite``. Paths are compared resolved (symbolic links followed) and with
    :func:`os.path.samefile` (hard links, two spellings of one file).
-3. **Never anything but a regular file or a directory.** A named pipe, a device, a socket, or
+3. **Never inside hyprog's own packages** (:data:`PACKAGES`: the code and the packaged sample
+   data, ``data_samples/tiny`` the pipeline's default input), with or without
+   ``--overwrite``: a fleet hyprog wrote there once would otherwise be replaceable like any
+   other of its outputs.
+4. **Never anything but a regular file or a directory.** A named pipe, a device, a socket, or
    a symbolic link to one of them is refused, even with ``--overwrite``: ``os.replace`` would
    put a regular file where the device was.
-4. Nothing there, or an empty directory (empty but for hyprog's own hidden entries:
+5. Nothing there, or an empty directory (empty but for hyprog's own hidden entries:
    :func:`.names.is_hyprog_entry`): written.
-5. **An output hyprog wrote, of the same kind** (``ours``): replaced as a whole, atomically,
+6. **An output hyprog wrote, of the same kind** (``ours``): replaced as a whole, atomically,
    unless it holds entries hyprog did not write. What hyprog wrote in a folder is what the
    writer's ``layout`` lists (the format's own files: a parquet dataset's
    ``unit=<n>/part-0.parquet``, a model's ``model.json`` and the weights files its manifest
    names, a report's three files) plus hyprog's hidden temporaries, backups and locks;
    anything else (``NOTES.md``, ``analysis.txt``) is the user's, and replacing the folder would
    delete it, so the replacement is refused unless ``--overwrite``.
-6. **Anything else** (a regular file hyprog cannot recognise as its own, a folder of other
+7. **Anything else** (a regular file hyprog cannot recognise as its own, a folder of other
    files, an output of another kind): refused with an :class:`InputError` that says what is
    there, unless ``--overwrite`` (``overwrite=True``), which replaces it.
 
 A kind that is written *into* rather than replaced (``resumed``: the pipeline's and the
 experiment's folders, a feature table that ``calibrate`` resumes) deletes nothing the user put
-there, so rule 5's check of other entries does not apply; those commands take no
+there, so rule 6's check of other entries does not apply; those commands take no
 ``--overwrite`` and never write into a folder of other files.
 
 Nothing is deleted before the new output is complete, and a failed write leaves the previous
@@ -52,6 +56,24 @@ from pathlib import Path, PurePosixPath
 from engine_model.validation import InputError
 
 from .names import is_hyprog_entry
+
+#: hyprog's top-level packages (rule 3 of the module docstring).
+PACKAGES = ("engine_model", "calibration", "prognostics", "workflows", "cli", "data_samples")
+
+
+def package_holding(path: Path) -> Path | None:
+    """The directory of the package of :data:`PACKAGES` that is ``path`` or holds it, None
+    when there is none (found without importing the packages)."""
+    import importlib.util
+
+    target = Path(os.path.realpath(path))
+    for name in PACKAGES:
+        spec = importlib.util.find_spec(name)
+        for loc in (spec.submodule_search_locations or []) if spec else []:
+            home = Path(os.path.realpath(loc))
+            if target == home or home in target.parents:
+                return home
+    return None
 
 
 @dataclass(frozen=True)
@@ -116,7 +138,7 @@ def describe(path: Path) -> str:
 def foreign_entries(folder: Path, layout: Iterable[str]) -> list[str]:
     """The entries under ``folder`` that hyprog did not write: neither a file of ``layout``
     (relative POSIX paths), nor a folder on the way to one, nor a hyprog temporary, backup or
-    lock (rule 5). A foreign folder is listed once, not its contents."""
+    lock (rule 6). A foreign folder is listed once, not its contents."""
     owned = {PurePosixPath(x) for x in layout}
     on_the_way = {d for x in owned for d in x.parents}
     found = []
@@ -185,14 +207,18 @@ def _refuse(path, p: Path, kind: OutputKind, recognised: bool) -> InputError:
 def check_output(path: str | os.PathLike, kind: OutputKind, overwrite: bool = False,
                  inputs: Sequence[str | os.PathLike | None] = ()) -> Path:
     """The absolute output path, after the rule of the module docstring for a writer of
-    ``kind`` whose command reads ``inputs``; ``overwrite`` (``--overwrite``) lifts rules 5
-    and 6 only. Raises InputError."""
+    ``kind`` whose command reads ``inputs``; ``overwrite`` (``--overwrite``) lifts rules 6
+    and 7 only. Raises InputError."""
     p = Path(os.path.abspath(path))
     cwd = Path.cwd().resolve()
     if p.resolve() == cwd or p.resolve() in cwd.parents:
         raise InputError(f"{path}: is the current directory or one of its parents; name a new"
                          " output inside it (e.g. --out fleet)")
     check_not_an_input(p, inputs, path)
+    home = package_holding(p)
+    if home is not None:
+        raise InputError(f"{path}: is inside hyprog's package {home}; hyprog never writes "
+                         "there, not even with --overwrite; choose another output")
     if not p.exists() and not p.is_symlink():
         above = next(q for q in p.parents if q.exists())
         if not above.is_dir():
