@@ -136,6 +136,16 @@ def test_a_nan_unit_names_its_row_in_the_file(tmp_path, strict):
             read_dataset(path)
 
 
+def test_a_cycle_below_one_names_its_unit_and_row_in_the_file(tmp_path, strict):
+    """import-cmapss refuses it; a table written by other means is refused on reading, so
+    calibrate and predict never count a cycle -1 as a flight."""
+    cols = {k: v.to_numpy()[:3] for k, v in table().items()}
+    write_file(tmp_path / "ds" / "data.parquet", {**cols, "cycle": np.array([1, 2, -1])})
+    with pytest.raises(InputError, match=r"unit \d+, row 3, column cycle = -1: cycles count "
+                                         r"flights from 1"):
+        read_dataset(tmp_path / "ds")
+
+
 # 5. pandas-written files: an index, a partitioned folder; a file without unit -------------
 def test_pandas_written_parquet_is_read_as_the_file_holds_it(tmp_path):
     df = table()

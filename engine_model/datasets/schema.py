@@ -122,8 +122,9 @@ def as_numeric(df: pd.DataFrame, source: str) -> pd.DataFrame:
 
 def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
     """``unit``/``cycle`` to int64 (NaN, fractions, an integer type's value beyond int64 or a
-    float's beyond :data:`MAX_FLOAT_ID` are errors); Fc/hs/RUL to int64 if exact; ``t`` to
-    float64."""
+    float's beyond :data:`MAX_FLOAT_ID` are errors, and so is a cycle below 1: cycles count
+    flights from 1, as C-MAPSS's and the simulator's do, and a unit's life is read from
+    them); Fc/hs/RUL to int64 if exact; ``t`` to float64."""
     out = {}
     for name in (k for k in INT_KEYS if k in df.columns):
         col = df[name]
@@ -167,6 +168,14 @@ def as_int_keys(df: pd.DataFrame, source: str) -> pd.DataFrame:
                 out[name] = values.astype(np.int64)
     if "t" in df.columns and df["t"].dtype != np.float64:
         out["t"] = df["t"].to_numpy(dtype=np.float64, na_value=np.nan)
+    if "cycle" in df.columns:
+        cycle = out["cycle"] if "cycle" in out else df["cycle"].to_numpy()
+        low = np.flatnonzero(cycle < 1)
+        if low.size:
+            i = int(low[0])
+            unit = f"unit {int(df['unit'].iloc[i])}, " if "unit" in df.columns else ""
+            raise InputError(f"{source}: {unit}row {row_label(df, i)}, column cycle = "
+                             f"{int(cycle[i])}: cycles count flights from 1")
     return df.assign(**out) if out else df
 
 
