@@ -316,6 +316,16 @@ def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candid
     bad.write_text("{}")
     with pytest.raises(InputError, match="not an adapted model"):
         load_adapted(bad)
+    # refused, as a request that would do nothing or cannot be applied: no effect, an effect
+    # at its neutral sizes, a series effect, an effect twice
+    for effects, message in (([], "holds no effect"),
+                             (["customer_bleed:f0=0,f_alt=0"], "neutral default"),
+                             (["dynamics:tau_spool=1"], "series effect"),
+                             (["customer_bleed:f0=0.01", "customer_bleed:f0=0.02"], "more than once")):
+        bad.write_text(json.dumps({"format": "hyprog-adapted-model", "version": 1,
+                                   "effects": effects}))
+        with pytest.raises(InputError, match=rf"bad\.json: .*{message}"):
+            load_adapted(bad)
 
 
 def test_calibrate_with_model_effects_records_the_adapted_model(tmp_path):
@@ -363,7 +373,7 @@ def test_adapt_cli_refuses_bad_input_in_one_line(tmp_path):
     assert_user_error(r, "unknown candidate(s) bleed")
     r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json"),
                             "--candidates", "map_scaling,map_scaling"])
-    assert_user_error(r, "map_scaling named twice")
+    assert_user_error(r, "map_scaling listed twice")
     assert not (tmp_path / "a.json").exists()
 
 

@@ -20,7 +20,9 @@ number that could not be computed (no converged sample at a condition) is writte
 held at the fitted values: the model that ``calibrate``, ``discover`` and ``pipeline`` build
 with ``--model-effects FILE`` (:func:`load_adapted`). Every feature table calibrated with it
 records the effects and the file's SHA-256 in its metadata (``calibration.effects``,
-``calibration.model_effects``).
+``calibration.model_effects``). A file whose effects would change nothing (none, or every
+size at its neutral default), a series effect (``dynamics``: calibration evaluates the steady
+model) or an effect given twice is refused when read.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from engine_model.datasets.jsonable import jsonable
+from engine_model.physics.effect_base import EffectSet
 from engine_model.physics.effects import EffectSpecError, parse_effect_spec
 from engine_model.runtime.atomic import atomic_output
 from engine_model.runtime.ownership import OutputKind
@@ -96,9 +99,23 @@ def load_adapted(path) -> AdaptedModel:
     effects = doc.get("effects")
     if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
         raise InputError(f"{p}: \"effects\" must be a list of effect specifications")
+    if not effects:
+        raise InputError(f"{p}: the adapted model holds no effect: calibrating with it is "
+                         "calibrating the model as designed (leave --model-effects out)")
     for i, spec in enumerate(effects):
         try:
-            parse_effect_spec(spec)
+            e = parse_effect_spec(spec)
         except (EffectSpecError, InputError) as exc:
             raise InputError(f"{p}: effects[{i}]: {exc}") from None
+        if e.series:
+            raise InputError(f"{p}: effects[{i}]: {spec} is a series effect (it acts on a "
+                             "flight's time series); an adapted model changes the steady "
+                             "model, which is all calibrate evaluates")
+        if e.is_neutral():
+            raise InputError(f"{p}: effects[{i}]: {spec}: every parameter is at its neutral "
+                             "default, so the effect changes nothing")
+    try:
+        EffectSet([parse_effect_spec(s) for s in effects])
+    except InputError as exc:  # an effect given twice
+        raise InputError(f"{p}: {exc}") from None
     return AdaptedModel(list(effects), doc, str(p), hashlib.sha256(raw).hexdigest())
