@@ -226,6 +226,36 @@ def test_a_record_names_its_optional_candidates_and_is_strict_json(tmp_path):
     assert json.loads(out.read_text())["selection"]["worst"] is None
 
 
+def test_a_condition_the_model_cannot_evaluate_is_the_worst_not_left_out(monkeypatch):
+    """A candidate under which no held-out sample of a condition converges predicts that
+    condition worst of all: ``chi2_out`` infinite, so it cannot enter on the other
+    conditions' lower error (the solves are stand-ins: only the bookkeeping is tested)."""
+    from types import SimpleNamespace
+
+    import calibration.adaptation.selection as selection
+
+    data, _ = fleet_data(simulated_fleet(units=6, cycles=12, seed=4), CHANNELS, model_error=0)
+    k = len(THETA_NAMES)
+
+    def fake_fit(model, train, shared, phi0=None, delta0=None, **kw):
+        return SimpleNamespace(delta=np.zeros((train.n_units, k)), phi=np.zeros(1))
+
+    def fake_evaluate(model, test, delta, phi, derivatives=False, x0=None):
+        ok = np.full(len(test.y), test.condition[0] != 2)  # condition 2 never converges
+        return SimpleNamespace(y=test.y + 0.1), np.ones_like(test.y), ok
+
+    monkeypatch.setattr(selection, "fit_fleet", fake_fit)
+    monkeypatch.setattr(selection, "evaluate", fake_evaluate)
+    monkeypatch.setattr(selection, "mean_prediction_std",
+                        lambda fit, ev, test, row, ok: np.ones(len(CHANNELS)))
+    start = SimpleNamespace(phi=np.zeros(1), delta=np.zeros((data.n_units, k)))
+    o = selection.condition_out(None, data, Shared.none(), start)
+    assert np.isinf(o.chi2[2]) and np.isinf(o.worst) and np.isinf(o.chi2_out)
+    assert o.unusable[2] == int((data.condition == 2).sum()) and o.unusable[1] == 0
+    assert o.chi2[1] == 1.0
+    assert not enters(o, OutOfSample(50.0, chi2={1: 50.0}))
+
+
 def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_noise(
         candidate_model, shaped):
     res = adapt(shaped, CHANNELS, CANDIDATES, model=candidate_model,
@@ -321,7 +351,8 @@ def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candid
     for effects, message in (([], "holds no effect"),
                              (["customer_bleed:f0=0,f_alt=0"], "neutral default"),
                              (["dynamics:tau_spool=1"], "series effect"),
-                             (["customer_bleed:f0=0.01", "customer_bleed:f0=0.02"], "more than once")):
+                             (["customer_bleed:f0=0.01", "customer_bleed:f0=0.02"],
+                              "more than once")):
         bad.write_text(json.dumps({"format": "hyprog-adapted-model", "version": 1,
                                    "effects": effects}))
         with pytest.raises(InputError, match=rf"bad\.json: .*{message}"):

@@ -123,6 +123,8 @@ class Adaptation:
                     "after": mean_errors(self.data, sel.fit.prediction, sel.fit.converged)},
                 "mean_error_pct_condition_out": {"before": sel.before.mean_error_pct,
                                                  "after": sel.after.mean_error_pct},
+                "unusable_condition_out": {"before": sel.before.unusable,
+                                           "after": sel.after.unusable},
                 "std_pct_condition_out": {"before": sel.before.std_pct,
                                           "after": sel.after.std_pct},
                 "theta_early_life": {"before": self.theta_summary(sel.base_fit),

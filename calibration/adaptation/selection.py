@@ -80,13 +80,18 @@ class OutOfSample:
     """Per held-out condition: ``chi2`` (mean squared whitened residual), ``mean_error_pct``
     (channel -> 100 (mean prediction - mean reading) / mean reading over its samples),
     ``std_pct`` (channel -> the std of that error under the fit's posterior and noise, in
-    % of the same mean reading: :func:`.fleet_fit.mean_prediction_std`); ``chi2_out`` over
-    every held-out sample."""
+    % of the same mean reading: :func:`.fleet_fit.mean_prediction_std`), ``unusable`` (the
+    held-out samples the model could not evaluate: its solve did not converge there);
+    ``chi2_out`` over every held-out sample. A condition none of whose samples the model can
+    evaluate has ``chi2`` infinite, and so has ``chi2_out``: a candidate that breaks the
+    model at a condition predicts it worst of all, not "not at all, so not counted" (an
+    FD002 run of 2026-11-28 nearly took in such a candidate on a lower score)."""
 
     chi2_out: float
     chi2: dict = field(default_factory=dict)
     mean_error_pct: dict = field(default_factory=dict)
     std_pct: dict = field(default_factory=dict)
+    unusable: dict = field(default_factory=dict)
 
     @property
     def worst(self) -> float:
@@ -127,6 +132,12 @@ def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> Ou
         row = np.array([pos.get(u, -1) for u in test.units])
         delta = np.where(row[:, None] >= 0, fit.delta[np.maximum(row, 0)], 0.0)
         ev, e, ok = evaluate(model, test, delta, fit.phi, derivatives=True)
+        res.unusable[int(c)] = int((~ok).sum())
+        if not ok.any():
+            res.chi2[int(c)] = float("inf")
+            res.mean_error_pct[int(c)] = {ch: float("nan") for ch in data.channels}
+            res.std_pct[int(c)] = {ch: float("nan") for ch in data.channels}
+            continue
         sq += float(np.sum(e[ok] ** 2))
         n += int(ok.sum()) * e.shape[1]
         res.chi2[int(c)] = float(np.mean(e[ok] ** 2))
@@ -135,7 +146,7 @@ def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> Ou
         std = mean_prediction_std(fit, ev, test, row, ok)
         res.std_pct[int(c)] = {ch: float(100.0 * std[j] / abs(level[j]))
                                for j, ch in enumerate(data.channels)}
-    res.chi2_out = sq / max(n, 1)
+    res.chi2_out = float("inf") if np.isinf(res.worst) else sq / max(n, 1)
     return res
 
 
@@ -202,8 +213,10 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
             sh = shared_of(groups, [*chosen, name])
             full = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x)
             o = condition_out(model, data, sh, full)
+            lost = sum(o.unusable.values())
             say(f"  {name}: chi2 in {full.chi2_per_sample():.3g}, out of sample "
-                f"{o.chi2_out:.3g}, worst condition {o.worst:.3g}")
+                f"{o.chi2_out:.3g}, worst condition {o.worst:.3g}"
+                + (f" ({lost} held-out samples not converged)" if lost else ""))
             if best is None or o.chi2_out < best[2].chi2_out:
                 best = (name, full, o)
         if best is None:
