@@ -56,12 +56,13 @@ def predict(
     from engine_model.datasets import read_dataset
     from engine_model.runtime import check_output, output_lock
     from prognostics.metrics import per_cycle
-    from prognostics.outputs import prediction_targets, write_predictions
+    from prognostics.outputs import check_table_suffix, prediction_targets, write_predictions
 
     with caught_warnings() as warned, user_errors(data, output=out):
         inputs = (model_dir, data)
         for target, kind in prediction_targets(out):  # before any work
             check_output(target, kind, overwrite, inputs)
+        check_table_suffix(out)
         with ExitStack() as locks:  # one writer per output, released on Ctrl-C too
             for target, _ in prediction_targets(out):
                 locks.enter_context(output_lock(target))

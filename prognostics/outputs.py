@@ -124,6 +124,19 @@ def per_cycle_path(out: str | os.PathLike) -> Path:
     return out.with_name(f"{out.stem}.per_cycle{out.suffix}")
 
 
+#: The suffixes of a prediction table: CSV, else parquet (a name without a suffix too).
+TABLE_SUFFIXES = (".csv", ".parquet", ".pq", "")
+
+
+def check_table_suffix(out: str | os.PathLike) -> None:
+    """A suffix that names another format (``.h5``, ``.txt``) is refused rather than given a
+    parquet file under that name."""
+    suffix = Path(out).suffix.lower()
+    if suffix not in TABLE_SUFFIXES:
+        raise InputError(f"--out {out}: a prediction table is written as CSV (.csv) or "
+                         f"parquet (.parquet, .pq), not {suffix}")
+
+
 def prediction_targets(out: str | os.PathLike) -> list[tuple[Path, OutputKind]]:
     """``predict``'s outputs and their kinds: ``out`` and its per-cycle sidecar."""
     return [(Path(out), PREDICTIONS), (per_cycle_path(out), PER_CYCLE)]

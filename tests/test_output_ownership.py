@@ -75,6 +75,13 @@ def table_file(features_parquet, tmp_path_factory):
 # ------------------------------------------------------------------------------------------
 # predict --out
 # ------------------------------------------------------------------------------------------
+def test_predict_refuses_a_suffix_of_another_format(runner, model, table_file, tmp_path):
+    for name in ("rul.h5", "rul.txt"):
+        assert_user_error(run(runner, "predict", model, table_file, "--out", tmp_path / name),
+                          "is written as CSV (.csv) or parquet")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_predict_never_writes_over_the_model_it_reads(runner, model, table_file):
     before = snapshot(model)
     assert_user_error(run(runner, "predict", model, table_file, "--out",
