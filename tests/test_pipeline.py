@@ -19,6 +19,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.main import app
+from tests.conftest import REPO
 
 CONFIG = """
 [simulate]
@@ -264,9 +265,12 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     ("[data]\ntest_units = [9]\n", ["[data] test_units", "9", "not in the data"]),
     ("[discover]\nalpha = 1.5\n", ["[discover] alpha", "1.5"]),
     ("[calibrate]\ndrift = -0.01\n", ["[calibrate] drift", "-0.01"]),
-    ("[simulate]\neffects = [\"customer_bleed\"]\n", ["[simulate]", "customer_bleed:f0="]),
+    ("[simulate]\npreset = \"tiny\"\neffects = [\"customer_bleed\"]\n",
+     ["[simulate]", "customer_bleed:f0="]),
+    ("[simulate]\neffects = [\"customer_bleed:f0=0.02\"]\nseed = 3\n",
+     ["[simulate] seed, effects set without preset", "nothing is simulated"]),
 ], ids=["epochs", "window", "max_rul", "max_rul-nan", "lr", "batch_size", "inputs",
-        "test_units", "alpha", "drift", "neutral-effect"])
+        "test_units", "alpha", "drift", "neutral-effect", "simulate-without-preset"])
 def test_bad_config_values_are_refused_before_any_stage(runner, tmp_path, toml, fragments):
     """Issue 31: these failed only after calibrate (and discover) ran, naming neither the file
     nor the key (``--alpha 1.5``, ``drift_std_per_sqrt_h``): now one line naming both, and
@@ -278,6 +282,16 @@ def test_bad_config_values_are_refused_before_any_stage(runner, tmp_path, toml, 
     assert_one_line_error(r, str(cfg), *fragments)
     assert "drift_std_per_sqrt_h" not in r.stderr and "--alpha" not in r.stderr
     assert not out.exists()  # no stage ran: a refused run leaves nothing
+
+
+def test_data_and_a_simulated_preset_together_are_refused(runner, tmp_path):
+    cfg = tmp_path / "sim.toml"
+    cfg.write_text('[simulate]\npreset = "tiny"\n')
+    out = tmp_path / "out"
+    tiny = REPO / "data_samples" / "tiny"
+    r = runner.invoke(app, ["pipeline", str(tiny), "--config", str(cfg), "--out", str(out)])
+    assert_one_line_error(r, str(cfg), "preset 'tiny' and DATA", "both given")
+    assert not out.exists()
 
 
 def test_missing_data_and_config_and_foreign_out(runner, tmp_path):

@@ -239,6 +239,12 @@ def check_values(config: dict, source: str = "config") -> None:
                                               max_effects=d["max_effects"], drift=d["drift"],
                                               n_draws=d["n_draws"]))
     sim = config["simulate"]
+    given = [k for k, v in (("rate_hz", sim["rate_hz"] is not None), ("seed", sim["seed"] != 0),
+                            ("effects", bool(sim["effects"]))) if v]
+    if given and not sim["preset"]:
+        raise InputError(f"{source}: [simulate] {', '.join(given)} set without preset: with no "
+                         "preset nothing is simulated (the pipeline runs on DATA or the "
+                         "packaged sample fleet); name the preset or drop them")
     if sim["rate_hz"] is not None:
         check("simulate", lambda: check_rate(sim["rate_hz"]))
     check("simulate", lambda: check_effects([parse_effect_spec(e) for e in sim["effects"]]))

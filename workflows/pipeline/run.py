@@ -89,6 +89,9 @@ def run_pipeline(out: str | Path, config: dict, data: str | Path | None = None,
     out = Path(out)
     check_data(None if data is None else Path(data))
     config_source = next((str(p) for p in inputs if p is not None), "config")
+    if data is not None and config["simulate"]["preset"]:
+        raise InputError(f"{config_source}: [simulate] preset {config['simulate']['preset']!r}"
+                         f" and DATA {data} both given: the pipeline runs on one; drop one")
     inputs = (data, *inputs)
     check_out(out, inputs)
     log = log or (lambda msg: None)
