@@ -281,6 +281,15 @@ def test_a_setting_beyond_its_noise_is_an_error_naming_line_and_column(tmp_path,
     assert str(e.value).startswith(f"{path}: line 2, {fragment}")
 
 
+def test_a_sensor_reading_that_is_not_positive_names_line_and_column(tmp_path):
+    bad = list(SENSORS)
+    bad[2] = -5.0  # T30
+    path = write_lines(tmp_path / "train_FD001.txt", [line(1, 1), line(1, 2, sensors=bad)])
+    with pytest.raises(InputError) as e:
+        read_cmapss(path)
+    assert str(e.value).startswith(f"{path}: line 2, column T30: -4.98 is not positive")
+
+
 def test_the_six_operating_conditions_are_labelled_and_others_are_zero(tmp_path):
     noise = (0.008, -0.002, 0.0)  # FD002's largest setting noise
     lines = [fd001_line(1, k + 1, a + noise[0], max(m + noise[1], 0.0), tra)

@@ -174,8 +174,8 @@ def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
     sensors (module doc).
     Raises InputError naming the file, line and column of a line with the wrong number of
     columns, a token that is not a number, a NaN, a unit / cycle that is not an integer from 1
-    to 2**53 - 1 or a setting outside the flight envelope by more than its noise, and for a file
-    without data lines."""
+    to 2**53 - 1, a setting outside the flight envelope by more than its noise or a sensor
+    reading that is not positive, and for a file without data lines."""
     p = existing_path(path)
     rows = _lines(p)
     if not rows:
@@ -186,6 +186,13 @@ def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
                              f" {len(CMAPSS_COLUMNS)} (unit, cycle, 3 settings, 21 sensors)")
     values = _numbers(p, rows, CMAPSS_COLUMNS)
     _check_integers(p, rows, values[:, :2], CMAPSS_COLUMNS[:2], minimum=1)
+    sensors = values[:, len(CMAPSS_COLUMNS) - len(CMAPSS_SENSORS):]
+    bad = np.argwhere(sensors <= 0)
+    if len(bad):  # every sensor reads a positive quantity (°R, psia, rpm, ratios, flows)
+        i, j = (int(v) for v in bad[0])
+        raise InputError(f"{p}: line {rows[i][0]}, column {CMAPSS_SENSORS[j]}: "
+                         f"{sensors[i, j]:g} is not positive (every C-MAPSS sensor reads a "
+                         "positive quantity)")
     df = pd.DataFrame(values, columns=list(CMAPSS_COLUMNS))
     df["unit"] = df["unit"].astype(np.int64)
     df["cycle"] = df["cycle"].astype(np.int64)
