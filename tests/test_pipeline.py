@@ -265,12 +265,15 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     ("[data]\ntest_units = [9]\n", ["[data] test_units", "9", "not in the data"]),
     ("[discover]\nalpha = 1.5\n", ["[discover] alpha", "1.5"]),
     ("[calibrate]\ndrift = -0.01\n", ["[calibrate] drift", "-0.01"]),
+    ("[discover]\nenabled = false\naugment = true\n",
+     ["[discover] augment = true with enabled = false"]),
     ("[simulate]\npreset = \"tiny\"\neffects = [\"customer_bleed\"]\n",
      ["[simulate]", "customer_bleed:f0="]),
     ("[simulate]\neffects = [\"customer_bleed:f0=0.02\"]\nseed = 3\n",
      ["[simulate] seed, effects set without preset", "nothing is simulated"]),
 ], ids=["epochs", "window", "max_rul", "max_rul-nan", "lr", "batch_size", "inputs",
-        "test_units", "alpha", "drift", "neutral-effect", "simulate-without-preset"])
+        "test_units", "alpha", "drift", "augment-without-discover", "neutral-effect",
+        "simulate-without-preset"])
 def test_bad_config_values_are_refused_before_any_stage(runner, tmp_path, toml, fragments):
     """Issue 31: these failed only after calibrate (and discover) ran, naming neither the file
     nor the key (``--alpha 1.5``, ``drift_std_per_sqrt_h``): now one line naming both, and

@@ -231,6 +231,9 @@ def check_values(config: dict, source: str = "config") -> None:
     if not c["drift"] > 0:  # theta's random walk: the discover stage's prior between cycles
         raise InputError(f"{source}: [calibrate] drift must be > 0, got {c['drift']}")
     d = config["discover"]
+    if d["augment"] and not d["enabled"]:
+        raise InputError(f"{source}: [discover] augment = true with enabled = false: nothing "
+                         "is discovered, so nothing would be added; drop one")
     if d["candidates"] is not None:
         check("discover", lambda: check_names(d["candidates"], "candidates"))
     if d["n_draws"] < 1:
