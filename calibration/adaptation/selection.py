@@ -27,14 +27,13 @@ Learning*, 2nd ed., sec. 3.3.2 and 7.10):
    otherwise the selection stops. It also stops when no candidate is left or after
    ``max_steps`` steps (8; the committed FD002 model used all eight: seven entered and the
    eighth was refused), and says why (:attr:`Selection.stopped`). Nothing is fitted per
-   operating point: every candidate is
-   one set of numbers for the whole envelope. The worst condition left out (the largest
-   per-condition ``chi2``, :attr:`OutOfSample.worst`) is reported at every step beside the
-   sum. A guard that let a candidate in only if it did not raise the worst condition was
-   tried on FD002 (2026-11-26) and dropped: it stopped the selection after two or four
-   candidates, on rises of 3-4 % in the worst condition, and left the in-sample error at
-   2.6-4.5 % and the worst error with a condition left out at 4.4-5.8 %
-   (docs/adaptation.md).
+   operating point: every candidate is one set of numbers for the whole envelope. The worst
+   condition left out (the largest per-condition ``chi2``, :attr:`OutOfSample.worst`) is
+   reported at every step beside the sum. A guard that let a candidate in only if it did not
+   raise the worst condition was tried on FD002 (2026-11-26) and dropped: it stopped the
+   selection after two or four candidates, on rises of 3-4 % in the worst condition, and
+   left the in-sample error at 2.6-4.5 % and the worst error with a condition left out at
+   4.4-5.8 % (docs/adaptation.md).
 
 Held-out engines (:func:`engines_out`): the engines are split into folds; the shared
 parameters are fitted on the others' engines, then each held-out engine's own health is
