@@ -18,7 +18,14 @@ from engine_model.validation import InputError
 from ..measurement_noise import EARLY_CYCLES
 from .data import DEFAULT_CHANNELS, MODEL_ERROR, fleet_data
 from .fleet_fit import FleetData, FleetFit, Shared, fit_fleet
-from .groups import OPTIONAL_GROUPS, SENSOR_GROUP, STEADY_GROUPS, bounds, build_groups
+from .groups import (
+    OPTIONAL_GROUPS,
+    SENSOR_GROUP,
+    STEADY_GROUPS,
+    bounds,
+    build_groups,
+    group_name,
+)
 from .selection import (
     TOP,
     OutOfSample,
@@ -163,8 +170,7 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
             "unit_list": list(data.units), "samples": len(data.y),
             "early_cycles": early_cycles, "model_error": model_error, "judge": judge,
-            "candidates": sorted({g.registry_name if not g.name.startswith(SENSOR_GROUP)
-                                  else SENSOR_GROUP for g in groups}),
+            "candidates": sorted({group_name(g) for g in groups}),
             "engine_folds": engine_folds, "seed": seed}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
 
@@ -188,16 +194,12 @@ def record_groups(record: dict, channels, source: str = "the adapted model") -> 
     ones included), for the record's ``channels``, in the library's order; a chosen name
     no group has is refused."""
     chosen = set(record["selection"]["chosen"])
-
-    def group_of(c) -> str:
-        return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
-
     every = build_groups(channels, (*STEADY_GROUPS, *OPTIONAL_GROUPS, SENSOR_GROUP))
     unknown = sorted(chosen - {c.name for c in every})
     if unknown:
         raise InputError(f"{source}: chosen candidate(s) {', '.join(unknown)} are not "
                          f"candidates of the channels {', '.join(channels)}")
-    names = sorted({group_of(c) for c in every if c.name in chosen})
+    names = sorted({group_name(c) for c in every if c.name in chosen})
     return build_groups(channels, names) if names else []
 
 

@@ -110,6 +110,12 @@ def build_groups(channels, names=None) -> list[Candidate]:
     return out
 
 
+def group_name(c: Candidate) -> str:
+    """The group (``--candidates`` name) a candidate comes from: ``sensor_gain`` for a gain,
+    else its effect's registry name."""
+    return SENSOR_GROUP if c.name.startswith(SENSOR_GROUP + "_") else c.registry_name
+
+
 def bounds(c: Candidate) -> tuple[np.ndarray, np.ndarray]:
     """``(lower, upper)`` of a candidate's parameters: the valid range, closed at the
     neutral value on a one-sided parameter."""
