@@ -26,6 +26,11 @@ INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; 
                "mode, health_true likewise), "
                "explicit columns (alt,Mach,...), or a set plus columns (hybrid+Ps30,phi).")
 
+#: TrainConfig's fields as this command's options, so that a bad value's error names the option.
+OPTIONS = {f: "--" + f.replace("_", "-") for f in (
+    "window", "stride", "epochs", "batch_size", "patience", "max_rul", "lr", "alpha", "device",
+    "schedule", "normalise", "validation", "seed")}
+
 
 def train(
     features: Annotated[Path, typer.Argument(
@@ -106,10 +111,9 @@ def train(
     from prognostics.ensemble import fit
     from prognostics.train_config import TrainConfig
 
-    with caught_warnings() as warned, user_errors(features, output=out):
+    with user_errors():  # the options alone, before any file is read: errors name the option
         if ensemble < 1:
             raise CliError(f"--ensemble {ensemble}: expected >= 1")
-        check_model_target(out, overwrite, (features,))  # before hours of training
         by_seed = val_units is not None and val_units.strip().lower() == "seed"
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
@@ -125,6 +129,9 @@ def train(
                           units=tuple(parse_units(units) or []) or None,
                           conformal_units=tuple(cu), alpha=0.1 if alpha is None else alpha,
                           device=device)
+        cfg.resolved(OPTIONS)
+    with caught_warnings() as warned, user_errors(features, output=out):
+        check_model_target(out, overwrite, (features,))  # before hours of training
         with output_lock(out):  # one writer per model directory; released on Ctrl-C too
             df, meta = read_dataset(features)
             rul = fit(df, meta, cfg, seeds=range(seed, seed + ensemble),

@@ -51,6 +51,7 @@ not a fit. At the paper's 5 M samples every rule gives the paper's value back.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 
 from engine_model.validation import InputError, check_seed
@@ -119,35 +120,43 @@ class TrainConfig:
 
         return self.per_flight or bool(health_groups_of(self.inputs))
 
-    def resolved(self) -> TrainConfig:
+    def resolved(self, names: Mapping[str, str] | None = None) -> TrainConfig:
         """The window filled in and values checked; the size rules (epochs, batch size,
-        patience, validation) stay None / "auto" until :meth:`sized`."""
+        patience, validation) stay None / "auto" until :meth:`sized`. ``names``: how a field
+        is named in an error (the CLI passes its option names, ``{"epochs": "--epochs"}``);
+        a field not in it is named as the field."""
+        def called(field: str) -> str:
+            return (names or {}).get(field, field)
+
         if self.model not in MODEL_KINDS:
             raise InputError(f"unknown model {self.model!r}; one of {', '.join(MODEL_KINDS)}")
         for name, allowed in (("schedule", SCHEDULES), ("normalise", NORMALISATIONS),
                               ("validation", VALIDATIONS)):
             if getattr(self, name) not in allowed:
-                raise InputError(f"{name} must be one of {', '.join(allowed)}, got "
+                raise InputError(f"{called(name)} must be one of {', '.join(allowed)}, got "
                                  f"{getattr(self, name)!r}")
         c = replace(self,
                     window=DEFAULT_WINDOW[self.model] if self.window is None else self.window)
-        check_seed(c.seed)
+        check_seed(c.seed, called("seed"))
         if c.device not in ("auto", "cpu", "cuda"):
-            raise InputError(f"device must be auto, cpu or cuda, got {c.device!r}")
+            raise InputError(f"{called('device')} must be auto, cpu or cuda, got {c.device!r}")
         if not 0.0 <= c.val_fraction < 1.0:  # (NaN fails too)
-            raise InputError(f"validation fraction must lie in [0, 1), got {c.val_fraction}")
+            raise InputError(f"{called('val_fraction')} (validation fraction) must lie in "
+                             f"[0, 1), got {c.val_fraction}")
         for name in ("window", "stride", "epochs", "batch_size", "patience"):
             v = getattr(c, name)
             if v is not None and int(v) < 1:
-                raise InputError(f"{name} must be >= 1, got {v}")
+                raise InputError(f"{called(name)} must be >= 1, got {v}")
         for name in ("max_rul", "trend_cap"):
             v = getattr(c, name)
             if v is not None and not (v > 0 and v < float("inf")):
-                raise InputError(f"{name} must be a positive finite number, got {v}")
+                raise InputError(f"{called(name)} must be a positive finite number, got {v}")
         if not (c.lr > 0 and c.lr < float("inf")):
-            raise InputError(f"lr (learning rate) must be a positive finite number, got {c.lr}")
+            raise InputError(f"{called('lr')} (learning rate) must be a positive finite number, "
+                             f"got {c.lr}")
         if not 0.0 < c.alpha < 1.0:
-            raise InputError(f"alpha (interval miscoverage) must lie in (0, 1), got {c.alpha}")
+            raise InputError(f"{called('alpha')} (interval miscoverage) must lie in (0, 1), "
+                             f"got {c.alpha}")
         return c
 
     def validation_for(self, n_units: int) -> str:

@@ -96,7 +96,7 @@ def test_a_data_writer_does_not_replace_a_feature_table(runner, tmp_path):
     ('[simulate]\npreset = "tiny"\nseed = -1\n', "[simulate] seed -1"),
     ("[calibrate]\ndrift = 0.0\n", "[calibrate] drift must be > 0"),
     ('[train]\ndevice = "tpu"\n', "[train] device must be auto, cpu or cuda"),
-    ("[train]\nval_fraction = 2.0\n", "[train] validation fraction"),
+    ("[train]\nval_fraction = 2.0\n", "[train] val_fraction (validation fraction)"),
     ('[discover]\ncandidates = ["nope"]\n', "[discover] candidates: unknown effect 'nope'"),
     ("[train]\nval_units = [99]\n", "[train] val_units: unit(s) 99"),
 ], ids=["seed", "drift", "device", "val-fraction", "candidates", "val-units"])

@@ -358,10 +358,13 @@ def test_cmapss_files_import_train_and_evaluate_unchanged(runner, tmp_path):
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["--max-rul", "nan"], "max_rul must be a positive finite number"),
-    (["--max-rul", "inf"], "max_rul must be a positive finite number"),
+    (["--max-rul", "nan"], "--max-rul must be a positive finite number"),
+    (["--max-rul", "inf"], "--max-rul must be a positive finite number"),
+    (["--epochs", "0"], "--epochs must be >= 1, got 0"),
+    (["--batch-size", "0"], "--batch-size must be >= 1"),
+    (["--seed", "-1"], "--seed -1: expected an integer >= 0"),
     (["--window", "100000000"], "window 100000000 is longer than the longest development unit"),
-    (["--lr", "inf"], "learning rate"),
+    (["--lr", "inf"], "--lr (learning rate)"),
     (["--alpha", "nan", "--conformal-units", "4"], "alpha"),
 ])
 def test_train_refuses_values_before_training(runner, features_parquet, tmp_path, args,
