@@ -148,6 +148,19 @@ def test_reference_bad_csv_names_row_and_column(runner, tmp_path):
     empty.write_text("")
     assert_user_error(run(runner, "model", "reference", str(empty)), str(empty))
 
+    twice = tmp_path / "twice.csv"
+    twice.write_text(header + ",T30\n" + first + ",1\n")
+    assert_user_error(run(runner, "model", "reference", str(twice)), str(twice), "T30",
+                      "more than once")
+
+    names = header.split(",")
+    cells = [c if n in ("alt_kft", "Mach", "TRA", "T2") else ("0" if i % 2 else "")
+             for i, (n, c) in enumerate(zip(names, first.split(",")))]
+    nothing = tmp_path / "nothing.csv"
+    nothing.write_text(header + "\n" + ",".join(cells) + "\n")
+    assert_user_error(run(runner, "model", "reference", str(nothing)), str(nothing),
+                      "nothing to compare")
+
 
 def test_envelope_json_all_points_converge(runner):
     r = run(runner, "model", "envelope", "--n", "50", "--json")

@@ -17,6 +17,7 @@ theta = 0; per channel the error is ``100 (model - reference) / reference`` [%].
 
 from __future__ import annotations
 
+import csv
 import math
 import os
 from pathlib import Path
@@ -53,6 +54,11 @@ def load_reference(path: str | os.PathLike) -> pd.DataFrame:
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read as CSV ({str(exc).splitlines()[0]})") from None
+    with open(path, newline="", encoding="utf-8", errors="replace") as f:
+        header = [h.strip() for h in next(csv.reader(f), [])]  # read_csv renames repeats
+    twice = sorted({h for h in header if header.count(h) > 1})
+    if twice:
+        raise InputError(f"{path}: column(s) {', '.join(twice)} appear more than once")
     df.columns = [str(c).strip() for c in df.columns]
     check_columns(list(df.columns), REFERENCE_W, what=str(path))
     channels = [c for c in REFERENCE_CHANNELS if c in df.columns]
@@ -72,6 +78,10 @@ def load_reference(path: str | os.PathLike) -> pd.DataFrame:
             raise InputError(f"{path}: row {num.isna().idxmax()}, column {c}: value is missing")
         df[c] = num.astype(float)
     ref = df[[*REFERENCE_W, *channels]]
+    values = ref[channels].to_numpy()
+    if not (np.isfinite(values) & (values != 0)).any():
+        raise InputError(f"{path}: nothing to compare: every value of {', '.join(channels)} "
+                         "is missing or 0 (an error in % needs a non-zero reading)")
     check_w(reference_w(ref).to_numpy(), row_labels=ref.index.to_numpy(), source=str(path))
     return ref
 
