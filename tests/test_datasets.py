@@ -10,6 +10,7 @@ import os
 import h5py
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from pandas.testing import assert_frame_equal
@@ -519,3 +520,29 @@ def test_effect_parameters_and_health_of_the_wrong_shape_are_refused():
         m.solve(w, None, np.zeros(3))
     with pytest.raises(InputError, match=r"theta: shape \(9,\)"):
         m.solve(w, np.zeros(9))
+
+
+def test_a_partition_storing_a_channel_as_text_names_file_column_and_row(tmp_path):
+    """One unit's part file with a sensor stored as text (a hand-edited export): pyarrow's
+    cast failed naming neither the file nor the row; the error names both."""
+    from engine_model.validation import InputError
+    from tests.conftest import REPO
+
+    df, meta = datasets.read_dataset(REPO / "data_samples" / "tiny", units=[1, 2])
+    df = df[df["cycle"] <= 2]
+    path = datasets.write_parquet(df, tmp_path / "d", meta)
+    part = path / "unit=2" / "part-0.parquet"
+    table = pq.read_table(part)
+    text = [f"{v}" for v in table.column("T30").to_pylist()]
+    pq.write_table(table.set_column(table.schema.get_field_index("T30"), "T30",
+                                    pa.array(text)).replace_schema_metadata(
+                                        table.schema.metadata), part)
+    back, _ = datasets.read_dataset(path)  # numbers as text: read as the numbers they are
+    assert np.allclose(back["T30"], df["T30"])
+    text[3] = "hot"
+    pq.write_table(table.set_column(table.schema.get_field_index("T30"), "T30",
+                                    pa.array(text)).replace_schema_metadata(
+                                        table.schema.metadata), part)
+    with pytest.raises(InputError, match=r"unit=2.*part-0.parquet: column T30, row 4: 'hot' "
+                                         "is not a number"):
+        datasets.read_dataset(path)

@@ -251,17 +251,42 @@ def _arrow_error(path: Path, exc: Exception) -> InputError:
     return InputError(f"{path}: not a readable parquet dataset ({first})")
 
 
+def _numeric(t: pa.DataType) -> bool:
+    return pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_boolean(t)
+
+
+def _not_a_number(file: Path, column: str) -> InputError | None:
+    """InputError naming the first row of ``file``'s text ``column`` that is not a number;
+    None when every value reads as one (pyarrow casts them)."""
+    values = pq.read_table(file, columns=[column]).column(column).to_pandas()
+    bad = pd.to_numeric(values, errors="coerce").isna() & values.notna()
+    if not bad.any():
+        return None
+    return InputError(f"{file}: column {column}, row {int(bad.to_numpy().argmax()) + 1}: "
+                      f"{values[bad].iloc[0]!r} is not a number")
+
+
 def _check_same_columns(files: list[Path]) -> None:
     """Every part file of a directory has the first one's columns (a dataset read across
     them would otherwise take the first file's: a column one unit lacks would vanish from
-    every unit, or come back as NaN for that unit, without a word)."""
-    first = set(pq.read_schema(files[0]).names)
+    every unit, or come back as NaN for that unit, without a word), numeric where the first
+    file's are (a column one unit stores as text, with a value that is not a number, failed
+    in pyarrow's cast naming neither file nor row: the error names both)."""
+    schema = pq.read_schema(files[0])
+    first = set(schema.names)
     for f in files[1:]:
-        names = set(pq.read_schema(f).names)
+        other = pq.read_schema(f)
+        names = set(other.names)
         if names != first:
             diff = sorted(first ^ names)
             raise InputError(f"{f}: its columns differ from {files[0].parent.name}'s (column(s) "
                              f"{', '.join(diff)} in one of them only)")
+        for c in other.names:
+            a, b = schema.field(c).type, other.field(c).type
+            if _numeric(a) != _numeric(b):
+                error = _not_a_number(f if _numeric(a) else files[0], c)
+                if error is not None:
+                    raise error
 
 
 def _open_parquet(path: Path) -> tuple[pds.Dataset, int | None]:
