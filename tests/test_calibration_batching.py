@@ -198,3 +198,39 @@ def test_keyed_compile_builds_only_on_a_miss(tmp_path, monkeypatch):
     assert len(calls) == 1
     compile_keyed("hyprog_keyed_test", "k2", ["keyed_square"], build, opt="-O1")
     assert len(calls) == 2  # another key: built and compiled again
+
+
+def _compile_square(cache: str, cc: str) -> float:
+    """In a fresh process: the library of ``x * x`` from ``cache`` with the compiler ``cc``."""
+    import os
+
+    import casadi as ca
+
+    os.environ["HYPROG_CACHE"], os.environ["CC"] = cache, cc
+    from engine_model.solver.codegen import compile_functions
+
+    x = ca.SX.sym("x")
+    fns = compile_functions("hyprog_locked_test", [ca.Function("locked_square", [x], [x * x])],
+                            opt="-O1")
+    return float(fns["locked_square"](3.0))
+
+
+def test_processes_that_need_one_library_at_once_compile_it_once(tmp_path):
+    """Two processes missing the same library in the cache: one compiles (here a compiler
+    that takes 2 s), the other waits on the lock and loads it; before, both compiled."""
+    import multiprocessing
+    import shutil
+
+    from engine_model.solver.codegen import compiler
+
+    log = tmp_path / "calls.log"
+    wrapper = tmp_path / "slow-cc"
+    wrapper.write_text(f"#!/bin/sh\necho run >> {log}\nsleep 2\nexec {shutil.which(compiler())}"
+                       ' "$@"\n')
+    wrapper.chmod(0o755)
+    cache = tmp_path / "cache"
+    with multiprocessing.get_context("spawn").Pool(2) as pool:
+        got = pool.starmap(_compile_square, [(str(cache), str(wrapper))] * 2)
+    assert got == [9.0, 9.0]
+    assert log.read_text().split() == ["run"]
+    assert len(list(cache.glob("hyprog_locked_test_*.so"))) == 1

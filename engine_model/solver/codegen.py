@@ -8,7 +8,10 @@ to build (the engine's exact sensitivities: about 1 s of CasADi graph work, half
 start-up) are built only when their library is not in the cache. The cache directory is
 ``$HYPROG_CACHE`` or ``~/.cache/hyprog``. Files are written atomically
 (:mod:`engine_model.runtime.atomic`), so concurrent processes never load a half-written
-library.
+library, and a library is built under an exclusive lock (:func:`_building`), so that of
+several processes that need the same library at once (pytest-xdist workers, the pipeline's
+worker processes) one compiles it and the others wait and load it, instead of each
+spending the same 20-40 s of the compiler.
 """
 
 import hashlib
@@ -16,7 +19,8 @@ import os
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import casadi as ca
@@ -63,7 +67,10 @@ def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2",
         key = hashlib.sha256(src + _command(cc, opt, extra_flags, optional_flags)).hexdigest()[:16]
         lib = cache_dir() / f"{name}_{key}.so"
         if not lib.exists():
-            _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags, optional_flags)
+            with _building(lib):
+                if not lib.exists():  # not built meanwhile by the process that held the lock
+                    _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags,
+                             optional_flags)
     return _load(lib, [f.name() for f in functions])
 
 
@@ -79,13 +86,37 @@ def compile_keyed(name: str, key: str, names: list[str], build: Callable[[], lis
     full = hashlib.sha256(material + _command(cc, opt, extra_flags, optional_flags))
     lib = cache_dir() / f"{name}_k{full.hexdigest()[:16]}.so"
     if not lib.exists():
-        functions = build()
-        if [f.name() for f in functions] != list(names):
-            raise RuntimeError(f"{name}: built {[f.name() for f in functions]}, expected {names}")
-        with tempfile.TemporaryDirectory() as tmp:
-            src_path = _generate(name, functions, tmp)
-            _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags, optional_flags)
+        with _building(lib):
+            if not lib.exists():  # not built meanwhile by the process that held the lock
+                functions = build()
+                built = [f.name() for f in functions]
+                if built != list(names):
+                    raise RuntimeError(f"{name}: built {built}, expected {names}")
+                with tempfile.TemporaryDirectory() as tmp:
+                    src_path = _generate(name, functions, tmp)
+                    _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags,
+                             optional_flags)
     return _load(lib, names)
+
+
+@contextmanager
+def _building(lib: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``.<lib name>.building`` in the cache for the block (module
+    docstring). ``fcntl.flock``: the kernel releases it when its process ends, however it
+    ends, so a lock is never stale; the lock file itself stays (a few bytes, reused). Where
+    there is no ``fcntl`` (Windows) the block runs unlocked: two processes may then compile
+    the same library, each writing it atomically."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover
+        yield
+        return
+    with open(lib.with_name(f".{lib.name}.building"), "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _compiler_or_fail() -> str:
