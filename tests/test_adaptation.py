@@ -221,6 +221,10 @@ def test_a_record_names_its_optional_candidates_and_is_strict_json(tmp_path):
     df = simulated_fleet(units=6, cycles=12, seed=4)
     with pytest.raises(InputError, match="no value of design_scaling_HPC.flow"):
         assess(df, rec)
+    levels = CandidateModel(build_groups(CHANNELS, ["design_scaling"]), compiled=False)
+    with pytest.raises(InputError, match="prebuilt model lacks chosen candidate\\(s\\) "
+                                         "duct_loss, sensor_gain_P15"):
+        assess(df, rec, model=levels)
     out = write_adapted({"effects": [], "selection": {"worst": float("nan")}},
                         tmp_path / "a.json")
     assert json.loads(out.read_text())["selection"]["worst"] is None
@@ -325,7 +329,7 @@ def test_the_adapted_model_round_trips_and_calibrate_records_it(tmp_path, candid
     doc = json.loads(out.read_text())
     assert doc["format"] == "hyprog-adapted-model" and doc["data"]["units"] == 6
     # the record refitted to the same data from its file gives its own held-out errors
-    fit, oos = assess(shaped.iloc[: 12 * 18 // 2], doc)
+    fit, oos = assess(shaped.iloc[: 12 * 18 // 2], doc, model=candidate_model)
     rec = doc["selection"]
     for c, errors in rec["mean_error_pct_condition_out"]["after"].items():
         for ch, v in errors.items():

@@ -213,8 +213,9 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
     (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on it gives the std
     that a record written before ``std_pct_condition_out`` existed lacks; on other engines
     of the same engine type, how the adaptation holds there. ``model``: a prebuilt
-    :class:`~calibration.discrepancy.candidates.CandidateModel` of the record's candidate
-    groups (tests); ``design``: the engine design to build it on
+    :class:`~calibration.discrepancy.candidates.CandidateModel` whose candidates include the
+    record's chosen ones, e.g. the one the adaptation ran with (tests; its other candidates
+    stay at 0, which leaves the engine as it is); ``design``: the engine design to build it on
     (:func:`engine_model.physics.design.design_engine`; default the model's own)."""
     from calibration.discrepancy.candidates import CandidateModel
 
@@ -224,7 +225,10 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
                          info.get("early_cycles", EARLY_CYCLES), units, source=source,
                          model_error=info.get("model_error", 0.0))
     check_fleet(data, source)
-    groups = record_groups(record, data.channels)
+    groups = record_groups(record, data.channels) if model is None else model.candidates
+    missing = sorted(set(chosen) - {c.name for c in groups})
+    if missing:  # (only a prebuilt model can lack one: record_groups refuses unknown names)
+        raise InputError(f"the prebuilt model lacks chosen candidate(s) {', '.join(missing)}")
     value = {(p["candidate"], p["parameter"]): p["value"] for p in record["parameters"]}
     phi = np.zeros(sum(len(c.params) for c in groups))
     for c in groups:
