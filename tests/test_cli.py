@@ -155,7 +155,7 @@ def test_reference_bad_csv_names_row_and_column(runner, tmp_path):
 
     names = header.split(",")
     cells = [c if n in ("alt_kft", "Mach", "TRA", "T2") else ("0" if i % 2 else "")
-             for i, (n, c) in enumerate(zip(names, first.split(",")))]
+             for i, (n, c) in enumerate(zip(names, first.split(","), strict=True))]
     nothing = tmp_path / "nothing.csv"
     nothing.write_text(header + "\n" + ",".join(cells) + "\n")
     assert_user_error(run(runner, "model", "reference", str(nothing)), str(nothing),
