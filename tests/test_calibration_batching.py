@@ -200,6 +200,45 @@ def test_keyed_compile_builds_only_on_a_miss(tmp_path, monkeypatch):
     assert len(calls) == 2  # another key: built and compiled again
 
 
+def test_a_models_libraries_compile_side_by_side_and_only_the_missing_one_is_built(
+        tmp_path, monkeypatch):
+    """``compile_keyed_all``: two missing libraries' compilers overlap (a wrapper compiler
+    that logs its start and end around 1 s of sleep: both start before either ends); with one
+    library in the cache, only the other is built and compiled."""
+    import shutil
+
+    import casadi as ca
+
+    from engine_model.solver.codegen import KeyedLibrary, compile_keyed_all, compiler
+
+    log = tmp_path / "calls.log"
+    wrapper = tmp_path / "slow-cc"
+    wrapper.write_text(f"#!/bin/sh\necho start >> {log}\nsleep 1\n"
+                       f"{shutil.which(compiler())} \"$@\"\nrc=$?\necho end >> {log}\n"
+                       "exit $rc\n")
+    wrapper.chmod(0o755)
+    monkeypatch.setenv("HYPROG_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(wrapper))
+    built = []
+
+    def job(name, power, key="k1"):
+        def build():
+            built.append(name)
+            x = ca.SX.sym("x")
+            return [ca.Function(name, [x], [x ** power])]
+        return KeyedLibrary(f"hyprog_{name}", key, (name,), build, opt="-O1")
+
+    square, cube = compile_keyed_all([job("pair_square", 2), job("pair_cube", 3)])
+    assert float(square["pair_square"](3.0)) == 9.0 and float(cube["pair_cube"](2.0)) == 8.0
+    assert log.read_text().split() == ["start", "start", "end", "end"]
+    assert built == ["pair_square", "pair_cube"]
+    log.write_text("")
+    square, cube = compile_keyed_all([job("pair_square", 2), job("pair_cube", 3, key="k2")])
+    assert float(cube["pair_cube"](2.0)) == 8.0
+    assert built == ["pair_square", "pair_cube", "pair_cube"]
+    assert log.read_text().split() == ["start", "end"]
+
+
 def _compile_square(cache: str, cc: str) -> float:
     """In a fresh process: the library of ``x * x`` from ``cache`` with the compiler ``cc``."""
     import os

@@ -20,7 +20,9 @@ import shutil
 import subprocess
 import tempfile
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
@@ -74,6 +76,22 @@ def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2",
     return _load(lib, [f.name() for f in functions])
 
 
+@dataclass(frozen=True)
+class KeyedLibrary:
+    """One library for :func:`compile_keyed_all`: the functions named ``names`` that
+    ``build()`` returns, identified by ``key`` (module docstring), compiled with ``opt``,
+    ``extra_sources``, ``extra_flags`` and, where the compiler takes them, ``optional_flags``."""
+
+    name: str
+    key: str
+    names: tuple
+    build: Callable[[], list]
+    opt: str = "-O2"
+    extra_sources: tuple = ()
+    extra_flags: tuple = ()
+    optional_flags: tuple = ()
+
+
 def compile_keyed(name: str, key: str, names: list[str], build: Callable[[], list],
                   opt: str = "-O2", extra_sources: tuple = (), extra_flags: tuple = (),
                   optional_flags: tuple = ()) -> dict[str, ca.Function]:
@@ -81,22 +99,55 @@ def compile_keyed(name: str, key: str, names: list[str], build: Callable[[], lis
     identifies (module docstring): the library is looked up by ``key``, the extra sources and
     the compiler command, and ``build()`` (returning the Functions) is called only when it is
     not in the cache. The caller's key must change whenever the generated code would."""
+    job = KeyedLibrary(name, key, tuple(names), build, opt, tuple(extra_sources),
+                       tuple(extra_flags), tuple(optional_flags))
+    return compile_keyed_all([job])[0]
+
+
+def compile_keyed_all(jobs: list[KeyedLibrary]) -> list[dict[str, ca.Function]]:
+    """:func:`compile_keyed` for several libraries at once, whose compilers run side by side:
+    the libraries missing from the cache are built one after the other (CasADi's graph work
+    and code generation stay in this thread), and each library's compiler starts as soon as
+    its source is written, so that a model's two libraries compile in about the time of the
+    larger one on two cores. The locks (:func:`_building`) are taken in the order of
+    ``jobs``, so processes asking for the same libraries never wait on each other in a
+    circle."""
     cc = _compiler_or_fail()
-    material = key.encode() + b"".join(Path(p).read_bytes() for p in extra_sources)
-    full = hashlib.sha256(material + _command(cc, opt, extra_flags, optional_flags))
-    lib = cache_dir() / f"{name}_k{full.hexdigest()[:16]}.so"
-    if not lib.exists():
-        with _building(lib):
-            if not lib.exists():  # not built meanwhile by the process that held the lock
-                functions = build()
-                built = [f.name() for f in functions]
-                if built != list(names):
-                    raise RuntimeError(f"{name}: built {built}, expected {names}")
-                with tempfile.TemporaryDirectory() as tmp:
-                    src_path = _generate(name, functions, tmp)
-                    _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags,
-                             optional_flags)
-    return _load(lib, names)
+    libs = [_keyed_path(cc, job) for job in jobs]
+    missing = [(job, lib) for job, lib in zip(jobs, libs, strict=True) if not lib.exists()]
+    if missing:
+        with ExitStack() as held:
+            for _, lib in missing:
+                held.enter_context(_building(lib))
+            tmp = held.enter_context(tempfile.TemporaryDirectory())
+            with ThreadPoolExecutor(max_workers=len(missing)) as pool:
+                running = []
+                for i, (job, lib) in enumerate(missing):
+                    if lib.exists():  # built meanwhile by the process that held the lock
+                        continue
+                    functions = job.build()
+                    built = [f.name() for f in functions]
+                    if built != list(job.names):
+                        raise RuntimeError(f"{job.name}: built {built}, expected "
+                                           f"{list(job.names)}")
+                    folder = Path(tmp) / str(i)
+                    folder.mkdir()
+                    src_path = _generate(job.name, functions, str(folder))
+                    running.append(pool.submit(
+                        _compile, cc, job.name, src_path, lib, job.opt, job.extra_sources,
+                        job.extra_flags, job.optional_flags))
+                for done in running:
+                    done.result()
+    return [_load(lib, list(job.names)) for job, lib in zip(jobs, libs, strict=True)]
+
+
+def _keyed_path(cc: str, job: KeyedLibrary) -> Path:
+    """Where :func:`compile_keyed_all` caches ``job``'s library: its name and a hash of its
+    key, its extra sources and the compiler command."""
+    material = job.key.encode() + b"".join(Path(p).read_bytes() for p in job.extra_sources)
+    full = hashlib.sha256(material + _command(cc, job.opt, job.extra_flags,
+                                              job.optional_flags))
+    return cache_dir() / f"{job.name}_k{full.hexdigest()[:16]}.so"
 
 
 @contextmanager

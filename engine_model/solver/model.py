@@ -55,7 +55,7 @@ from engine_model.units import T_STD_R, k_to_r
 from engine_model.validation import InputError, check_columns, check_theta, check_w
 
 from .batch_eval import BatchEvaluator
-from .codegen import cache_dir, compile_keyed
+from .codegen import KeyedLibrary, cache_dir, compile_keyed_all
 from .guess_table import GuessTable
 from .interface import Sensitivities
 from .newton_driver import CompiledNewton, JacobianStore, SolveResult, newton_chord_numpy
@@ -173,15 +173,17 @@ class EngineModel:
             name = "hyprog_engine" + (("_" + tag) if tag else "")
             key = self._library_key(f_out)
             sym = self._symbolic
-            hot = compile_keyed(
-                name + "_hot", key, ["hyprog_residual", "hyprog_resjac"],
-                lambda: [sym["residual"], sym["resjac"]], opt="-O3",
-                extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
-                extra_flags=("-DRES_FN=hyprog_residual", "-DRESJAC_FN=hyprog_resjac"),
-                optional_flags=("-fopenmp",))
+            # the two libraries' compilers run side by side (compile_keyed_all)
+            hot, cold = compile_keyed_all([
+                KeyedLibrary(name + "_hot", key, ("hyprog_residual", "hyprog_resjac"),
+                             lambda: [sym["residual"], sym["resjac"]], opt="-O3",
+                             extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
+                             extra_flags=("-DRES_FN=hyprog_residual",
+                                          "-DRESJAC_FN=hyprog_resjac"),
+                             optional_flags=("-fopenmp",)),
+                KeyedLibrary(name + "_cold", key, ("hyprog_outputs", "hyprog_sensitivities"),
+                             lambda: [sym["outputs"], sym["sens"]], opt="-O1")])
             self._newton_c = CompiledNewton(hot["__library__"])
-            cold = compile_keyed(name + "_cold", key, ["hyprog_outputs", "hyprog_sensitivities"],
-                                 lambda: [sym["outputs"], sym["sens"]], opt="-O1")
             fns = _LazyFunctions(self._derived, residual=hot["hyprog_residual"],
                                  resjac=hot["hyprog_resjac"], outputs=cold["hyprog_outputs"],
                                  sens=cold["hyprog_sensitivities"])
