@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from calibration.adaptation import adapt, assess, load_adapted, write_adapted
-from calibration.adaptation.adapt import record_groups
+from calibration.adaptation.adapt import prebuilt_groups, record_groups
 from calibration.adaptation.data import MODEL_ERROR, fleet_data
 from calibration.adaptation.fleet_fit import Shared, fit_fleet
 from calibration.adaptation.groups import build_groups
@@ -70,9 +70,14 @@ def simulated_fleet(truth_effects=(), units=12, cycles=18, seed=0) -> pd.DataFra
     return pd.concat(rows, ignore_index=True)
 
 
+#: the candidates of every adaptation in this module: one model (one compiled variant) for
+#: all, each adaptation selecting among its own (``adapt(model=)``, ``prebuilt_groups``)
+MODULE_CANDIDATES = (*CANDIDATES, "map_slope", "duct_loss", "cooling_flow")
+
+
 @pytest.fixture(scope="module")
 def candidate_model():
-    return CandidateModel(build_groups(CHANNELS, CANDIDATES))
+    return CandidateModel(build_groups(CHANNELS, MODULE_CANDIDATES))
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +144,7 @@ def test_fleet_fit_separates_the_shared_level_from_each_engines_health(candidate
     takes the offset, the engines' own health stays near zero on average."""
     df = simulated_fleet(["design_scaling:component=HPC,eff=-0.015"], units=10, seed=2)
     data, _ = fleet_data(df, CHANNELS, model_error=0.0)
-    groups = build_groups(CHANNELS, CANDIDATES)
+    groups = candidate_model.candidates
     sh = shared_of(groups, ["design_scaling_HPC"])
     fit = fit_fleet(candidate_model, data, sh)
     hpc = next(c for c in groups if c.name == "design_scaling_HPC")
@@ -225,6 +230,8 @@ def test_a_record_names_its_optional_candidates_and_is_strict_json(tmp_path):
     with pytest.raises(InputError, match="prebuilt model lacks chosen candidate\\(s\\) "
                                          "duct_loss, sensor_gain_P15"):
         assess(df, rec, model=levels)
+    with pytest.raises(InputError, match="prebuilt model lacks candidate\\(s\\) nozzle_area$"):
+        adapt(df, CHANNELS, ("design_scaling", "nozzle_area"), model=levels)
     out = write_adapted({"effects": [], "selection": {"worst": float("nan")}},
                         tmp_path / "a.json")
     assert json.loads(out.read_text())["selection"]["worst"] is None
@@ -277,7 +284,8 @@ def test_adapt_names_a_map_shape_change_and_the_held_out_error_returns_to_the_no
     assert all(np.isfinite(r["std"]) and r["std"] > 0 for r in rec["parameters"])
 
 
-def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not_change():
+def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not_change(
+        candidate_model):
     """C-MAPSS holds the corrected fan speed at one value in five of its six conditions, so a
     shape in corrected speed cannot tell them apart; the fan's working point still moves
     along its speed line as the bypass nozzle chokes. A fleet whose fan has flatter speed
@@ -289,8 +297,7 @@ def test_adapt_names_a_flatter_fan_speed_line_where_the_corrected_speed_does_not
     names = ("design_scaling", "map_slope", "nozzle_area")
     fleet = simulated_fleet(["map_slope:component=fan,slope=-0.4"], units=8, cycles=12,
                             seed=11)
-    res = adapt(fleet, CHANNELS, names, model=CandidateModel(build_groups(CHANNELS, names)),
-                model_error=0.0, judge=2)
+    res = adapt(fleet, CHANNELS, names, model=candidate_model, model_error=0.0, judge=2)
     sel = res.selection
     added = [c for c in sel.chosen if not c.startswith("design_scaling")]
     assert added and added[0] == "map_slope_fan", sel.chosen
@@ -432,7 +439,7 @@ def test_the_held_out_prediction_std_is_the_joint_posteriors(candidate_model, sh
     from calibration.adaptation.fleet_fit import evaluate, mean_prediction_std
 
     data, _ = fleet_data(shaped[shaped["unit"] <= 5], CHANNELS, model_error=0.0)
-    groups = build_groups(CHANNELS, CANDIDATES)
+    groups = candidate_model.candidates
     sh = shared_of(groups, ["design_scaling_HPC", "map_scaling_HPC"])
     held = data.condition == 4
     train, test = data.subset(~held), data.subset(held)
@@ -512,7 +519,8 @@ def test_a_fitted_bleed_schedule_negative_at_the_ceiling_is_refused_before_writi
         effects(0.01, -0.005)
 
 
-def test_design_point_losses_and_coolant_as_fleet_effects_and_what_the_fit_can_tell():
+def test_design_point_losses_and_coolant_as_fleet_effects_and_what_the_fit_can_tell(
+        candidate_model):
     """The opt-in design-point candidates (``duct_loss``, ``cooling_flow``) on a fleet whose
     bypass duct loses 0.5 % and whose burner 1 % more pressure, and whose HPT takes 1 % more
     coolant, in every engine. Fitted jointly with every engine's health: the bypass loss is
@@ -524,12 +532,12 @@ def test_design_point_losses_and_coolant_as_fleet_effects_and_what_the_fit_can_t
     df = simulated_fleet(["duct_loss:d_bypass=0.005,d_burner=0.01", "cooling_flow:d_hpt=0.01"],
                          units=10, seed=3)
     data, _ = fleet_data(df, CHANNELS, model_error=0.0)
-    groups = build_groups(CHANNELS, ["duct_loss", "cooling_flow"])
-    fit = fit_fleet(CandidateModel(groups), data, shared_of(groups, ["duct_loss",
-                                                                    "cooling_flow"]))
+    groups = prebuilt_groups(candidate_model, ["duct_loss", "cooling_flow"])
+    sh = shared_of(groups, ["duct_loss", "cooling_flow"])
+    fit = fit_fleet(candidate_model, data, sh)
     truth = {"d_bypass": 0.005, "d_burner": 0.01, "d_hpt": 0.01}
     names = [q for c in groups for q in c.params]
-    est = dict(zip(names, zip(fit.phi, fit.std, strict=True), strict=True))
+    est = dict(zip(names, zip(fit.phi[sh.free], fit.std, strict=True), strict=True))
     for q, (v, s) in est.items():
         assert abs(v - truth.get(q, 0.0)) < 3 * s + 1e-4, (q, v, s)
     assert est["d_bypass"][1] < 1e-3

@@ -148,7 +148,8 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
           model_error: float = MODEL_ERROR, judge: int = TOP) -> Adaptation:
     """Adapt the engine model to the fleet in ``df`` (package docstring). ``candidates``:
     registry names of :mod:`.groups` (default all); ``model``: a prebuilt
-    :class:`~calibration.discrepancy.candidates.CandidateModel` of the same groups (tests);
+    :class:`~calibration.discrepancy.candidates.CandidateModel` whose candidates include
+    these (:func:`prebuilt_groups`: one model for several adaptations);
     ``model_error``: the model's relative error in each sample's std (:mod:`.data`);
     ``judge``: candidates judged out of sample per step (:data:`.selection.TOP`)."""
     from calibration.discrepancy.candidates import CandidateModel
@@ -161,7 +162,10 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
                              model_error=model_error)
     check_fleet(data, source, engine_folds)
     groups = build_groups(data.channels, candidates)
-    model = model or CandidateModel(groups)
+    if model is None:
+        model = CandidateModel(groups)
+    else:
+        groups = prebuilt_groups(model, [c.name for c in groups])
     sel = select(model, data, groups, log, judge=judge)
     before = engines_out(model, data, Shared.none(), sel.base_fit, engine_folds, seed)
     after = engines_out(model, data, shared_of(groups, sel.chosen), sel.fit, engine_folds,
@@ -173,6 +177,18 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
             "candidates": sorted({group_name(g) for g in groups}),
             "engine_folds": engine_folds, "seed": seed}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
+
+
+def prebuilt_groups(model, names, what: str = "candidate") -> list:
+    """The candidates ``names`` as they are in the prebuilt ``model``, which indexes their
+    parameters in its own ``phi`` (a model built for more candidates than an adaptation
+    selects among or a record chose; the others stay at 0, which leaves the engine as it
+    is). Refused, naming them (as ``what``), when the model lacks any."""
+    have = {c.name: c for c in model.candidates}
+    missing = sorted(set(names) - set(have))
+    if missing:
+        raise InputError(f"the prebuilt model lacks {what}(s) {', '.join(missing)}")
+    return [have[n] for n in names]
 
 
 def check_fleet(data: FleetData, source: str, engine_folds: int = 2) -> None:
@@ -225,10 +241,11 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
                          info.get("early_cycles", EARLY_CYCLES), units, source=source,
                          model_error=info.get("model_error", 0.0))
     check_fleet(data, source)
-    groups = record_groups(record, data.channels) if model is None else model.candidates
-    missing = sorted(set(chosen) - {c.name for c in groups})
-    if missing:  # (only a prebuilt model can lack one: record_groups refuses unknown names)
-        raise InputError(f"the prebuilt model lacks chosen candidate(s) {', '.join(missing)}")
+    if model is None:  # (record_groups refuses a name it does not know)
+        groups = record_groups(record, data.channels)
+    else:
+        prebuilt_groups(model, chosen, "chosen candidate")
+        groups = model.candidates
     value = {(p["candidate"], p["parameter"]): p["value"] for p in record["parameters"]}
     phi = np.zeros(sum(len(c.params) for c in groups))
     for c in groups:
