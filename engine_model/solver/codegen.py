@@ -5,7 +5,9 @@ compiler command, so a changed model recompiles and an unchanged one is loaded b
 process without compiling. :func:`compile_keyed`: the caller gives a key computed without the
 functions (e.g. from the definitions they are derived from), so that functions that are slow
 to build (the engine's exact sensitivities: about 1 s of CasADi graph work, half of a model's
-start-up) are built only when their library is not in the cache. The cache directory is
+start-up) are built only when their library is not in the cache; :func:`compile_keyed_all`
+does so for several libraries at once, their compilers running side by side (a model's two
+libraries: 41 s -> 25 s for a first build on 2 cores, 2026-11-28). The cache directory is
 ``$HYPROG_CACHE`` or ``~/.cache/hyprog``. Files are written atomically
 (:mod:`engine_model.runtime.atomic`), so concurrent processes never load a half-written
 library, and a library is built under an exclusive lock (:func:`_building`), so that of
