@@ -40,7 +40,7 @@ def _pyplot():
 
 def _save(fig, path) -> None:
     with atomic_output(path, OWNED_FILE) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI, bbox_inches="tight")
+        fig.savefig(tmp, format="png", dpi=DPI)  # every figure lays itself out (constrained)
 
 
 def _whole_cycles(ax) -> None:

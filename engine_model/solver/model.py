@@ -87,14 +87,15 @@ class ResidualSystem:
 
 class _LazyFunctions(dict):
     """Functions by name; a missing one among the derived functions (``resjac``, ``sens``,
-    ``dxdth``) is taken from ``derive()`` (which builds them once) on first use."""
+    ``dxdth``) is taken from ``derive(key)`` (which builds it, and what is built with it,
+    once) on first use."""
 
     def __init__(self, derive, **functions):
         super().__init__(functions)
         self._derive = derive
 
     def __missing__(self, key):
-        derived = self._derive()
+        derived = self._derive(key)
         if key not in derived:
             raise KeyError(key)
         self[key] = derived[key]
@@ -163,7 +164,7 @@ class EngineModel:
         f_res = ca.Function("hyprog_residual", [x, w, th, p], [res], {"cse": True})
         f_out = ca.Function("hyprog_outputs", [x, w, th, p], [y], {"cse": True})
         self._sym = dict(x=x, w=w, theta=th, p=p, res=res, y=y)
-        self._derived_functions = None
+        self._derived_functions: dict[str, ca.Function] = {}
         self._symbolic = _LazyFunctions(self._derived, residual=f_res, outputs=f_out)
         self._residual_serialized = f_res.serialize()
         if self.compiled:
@@ -202,18 +203,26 @@ class EngineModel:
                  Path(__file__).read_text(), Path(codegen.__file__).read_text()]
         return hashlib.sha256("\0".join(parts).encode()).hexdigest()
 
-    def _derived(self) -> dict[str, ca.Function]:
-        """The functions derived from the residual system (built on first use): the Newton
-        Jacobian ``resjac``, the exact sensitivities ``sens`` (implicit function theorem) and
-        ``dxdth`` (dx*/dtheta, for tabulating starting guesses)."""
-        if self._derived_functions is not None:
-            return self._derived_functions
+    def _derived(self, key: str) -> dict[str, ca.Function]:
+        """The functions derived from the residual system, each group built on first use: the
+        Newton Jacobian ``resjac`` (0.2 s), and the exact sensitivities ``sens`` (implicit
+        function theorem) with ``dx*/dtheta`` ``dxdth`` (for tabulating starting guesses),
+        which share the solve with the Jacobian (1.7 s: a model evaluated by CasADi's virtual
+        machine, which solves and reads outputs, never builds them)."""
+        derived = self._derived_functions
+        if key in derived or key not in ("resjac", "sens", "dxdth"):
+            return derived
         x, w, th, p, res, y = (self._sym[k] for k in ("x", "w", "theta", "p", "res", "y"))
-        # the Newton Jacobian by reverse mode (one adjoint sweep per residual): 17 % fewer
-        # instructions than CasADi's default forward mode here, the same numbers
-        J = ca.densify(ca.jacobian(res, x, {"helper_options": {"ad_weight": 1.0}}))
         cse = {"cse": True}
-        f_resjac = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
+        if "J" not in self._sym:
+            # the Newton Jacobian by reverse mode (one adjoint sweep per residual): 17 % fewer
+            # instructions than CasADi's default forward mode here, the same numbers
+            self._sym["J"] = ca.densify(
+                ca.jacobian(res, x, {"helper_options": {"ad_weight": 1.0}}))
+        J = self._sym["J"]
+        if key == "resjac":
+            derived["resjac"] = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
+            return derived
         # exact sensitivities by the implicit function theorem (module docstring)
         n_th, n_w = th.numel(), w.numel()
         Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w),
@@ -224,11 +233,10 @@ class EngineModel:
         sens_out = [dth, dw]
         if p.numel():
             sens_out.append(ca.jacobian(y, p) - dy_dx @ Jinv_r[:, n_th + n_w:])
-        f_sens = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out, cse)
+        derived["sens"] = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out, cse)
         # dx*/dtheta, used only to tabulate starting guesses
-        f_dxdth = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, :n_th]])
-        self._derived_functions = dict(resjac=f_resjac, sens=f_sens, dxdth=f_dxdth)
-        return self._derived_functions
+        derived["dxdth"] = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, :n_th]])
+        return derived
 
     def _load_or_build_table(self) -> GuessTable:
         """The starting-guess table, cached on disk next to the compiled code."""
