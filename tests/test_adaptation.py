@@ -16,7 +16,7 @@ import pytest
 from calibration.adaptation import adapt, assess, load_adapted, write_adapted
 from calibration.adaptation.adapt import prebuilt_groups, record_groups
 from calibration.adaptation.data import MODEL_ERROR, fleet_data
-from calibration.adaptation.fleet_fit import Shared, fit_fleet
+from calibration.adaptation.fleet_fit import Shared, evaluate, fit_fleet
 from calibration.adaptation.groups import build_groups
 from calibration.adaptation.selection import (
     MIN_GAIN,
@@ -158,6 +158,35 @@ def test_fleet_fit_separates_the_shared_level_from_each_engines_health(candidate
     # on one engine the two are the same residual: only the engines' prior tells them apart
     assert abs(fit.chi2_per_sample() - own.chi2_per_sample()) < 0.01
     assert fit.cost < own.cost - 5.0
+
+
+def test_a_fit_whose_optimum_is_on_the_bounds_converges_to_it(candidate_model, shaped):
+    """The levels alone cannot follow a map shape: their optimum lies on the bounds, with
+    engines' health on the envelope too. The fit converges there (the relative decrease
+    falls below its tolerance well inside the iteration cap) and the point it returns meets
+    the bounded problem's optimality conditions (Karush-Kuhn-Tucker): the gradient of the
+    free parameters vanishes and that of a parameter on a bound pushes out of the range.
+    (Holding a parameter only when the step pushed it out released and clipped such
+    parameters every other iteration: this fit stopped at the 40-iteration cap 1 % above
+    its optimum.)"""
+    from calibration.adaptation.fleet_fit import MAX_ITER, THETA_HI, THETA_LO, _normal_equations
+
+    data, _ = fleet_data(shaped, CHANNELS, model_error=0.0)
+    groups = candidate_model.candidates
+    own = fit_fleet(candidate_model, data, Shared.none())
+    sh = shared_of(groups, [c.name for c in groups if c.registry_name == "design_scaling"])
+    fit = fit_fleet(candidate_model, data, sh, own.phi, own.delta, x0=own.x)
+    assert fit.iterations < MAX_ITER // 2, fit.history
+    b = fit.phi[sh.free]
+    lo, hi = b <= sh.lower, b >= sh.upper
+    assert (lo | hi).any() and ((fit.delta <= THETA_LO) | (fit.delta >= THETA_HI)).any()
+    ev, e, ok = evaluate(candidate_model, data, fit.delta, fit.phi, True, fit.x)
+    starts = np.searchsorted(data.unit, np.arange(data.n_units))
+    _, gu, _, hbb, gb = _normal_equations(ev, e, ok, data, fit.delta, fit.phi, sh,
+                                          fit.s_theta, starts)
+    scale = np.sqrt(np.diag(hbb))  # gradient per unit of the parameter's curvature
+    assert np.all(gb[lo] < 0) and np.all(gb[hi] > 0)
+    assert np.all(np.abs(gb[~(lo | hi)]) < 0.05 * scale[~(lo | hi)]), gb / scale
 
 
 def test_a_candidate_enters_on_the_out_of_sample_gain_and_the_worst_condition_is_reported():

@@ -19,9 +19,14 @@ The negative log posterior (``e`` the whitened residual)::
 
 is minimised by Gauss-Newton with Levenberg-Marquardt damping (the damping scaled by the
 matrix's diagonal, Marquardt 1963; Nocedal & Wright 2006, sec. 10.3),
-steps projected onto the bounds (a shared parameter at a bound that the step pushes out is
-held there for that step; so is an engine's health parameter at a bound of the calibration
-envelope, ``engine_model.validation.ENVELOPE.theta``). The normal equations are *bordered
+steps projected onto the bounds. A parameter on a bound whose gradient points out of its
+range is held there for the iteration (the active set of projected Newton methods, Bertsekas,
+"Projected Newton methods for optimization problems with simple constraints", SIAM J.
+Control Optim. 20, 1982), and so is one that the step, coupled to the others, pushes out;
+the same for an engine's health parameter on a bound of the calibration envelope,
+``engine_model.validation.ENVELOPE.theta``. (Holding only what the step pushed out released
+such parameters every other iteration, and fits whose optimum lies on the bounds stopped at
+the iteration cap short of it: 2026-11-28.) The normal equations are *bordered
 block-diagonal* (one small block per engine, a dense border for the shared parameters),
 solved by the Schur complement on the shared block (Triggs et al., "Bundle adjustment - a
 modern synthesis", 2000, sec. 6.1), so the cost is linear in the number of engines. The
@@ -224,12 +229,20 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
     for _ in range(max_iter):
         blocks = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta, starts)
         b = phi[free]
+        gu, gb = blocks[1], blocks[4]  # descent directions (gradients of -L)
+        # the active set (Bertsekas 1982): a parameter at a bound that the gradient pushes
+        # out is held there for this iteration
+        at_bound = ((b <= shared.lower) & (gb < 0)) | ((b >= shared.upper) & (gb > 0))
+        at_bound_u = ((delta <= THETA_LO) & (gu < 0)) | ((delta >= THETA_HI) & (gu > 0))
         accepted = False
         while lam <= 1e8:
-            db, dd = _step(*blocks, lam, np.zeros(len(b), bool), np.zeros(delta.shape, bool))
-            frozen = ((b <= shared.lower) & (db < 0)) | ((b >= shared.upper) & (db > 0))
-            frozen_u = ((delta <= THETA_LO) & (dd < 0)) | ((delta >= THETA_HI) & (dd > 0))
-            if frozen.any() or frozen_u.any():
+            db, dd = _step(*blocks, lam, at_bound, at_bound_u)
+            # and so is one that the step, coupled to the others, pushes out
+            frozen = at_bound | ((b <= shared.lower) & (db < 0)) \
+                | ((b >= shared.upper) & (db > 0))
+            frozen_u = at_bound_u | ((delta <= THETA_LO) & (dd < 0)) \
+                | ((delta >= THETA_HI) & (dd > 0))
+            if (frozen != at_bound).any() or (frozen_u != at_bound_u).any():
                 db, dd = _step(*blocks, lam, frozen, frozen_u)
             new_phi = phi.copy()
             new_phi[free] = np.clip(b + db, shared.lower, shared.upper)
