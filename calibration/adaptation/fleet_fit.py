@@ -206,6 +206,11 @@ def _step(Huu, gu, Hub, Hbb, gb, lam, frozen, frozen_u):
     return db, np.einsum("uij,uj->ui", Hinv, gu - Hub @ db)
 
 
+def _pushed_out(value, direction, lower, upper) -> np.ndarray:
+    """Which of ``value`` sit on a bound that ``direction`` points out of."""
+    return ((value <= lower) & (direction < 0)) | ((value >= upper) & (direction > 0))
+
+
 def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
               s_theta: float = S_THETA, max_iter: int = MAX_ITER, x0=None) -> FleetFit:
     """Minimise ``L`` (module docstring) over ``phi[shared.free]`` and every engine's
@@ -232,16 +237,14 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
         gu, gb = blocks[1], blocks[4]  # descent directions (gradients of -L)
         # the active set (Bertsekas 1982): a parameter at a bound that the gradient pushes
         # out is held there for this iteration
-        at_bound = ((b <= shared.lower) & (gb < 0)) | ((b >= shared.upper) & (gb > 0))
-        at_bound_u = ((delta <= THETA_LO) & (gu < 0)) | ((delta >= THETA_HI) & (gu > 0))
+        at_bound = _pushed_out(b, gb, shared.lower, shared.upper)
+        at_bound_u = _pushed_out(delta, gu, THETA_LO, THETA_HI)
         accepted = False
         while lam <= 1e8:
             db, dd = _step(*blocks, lam, at_bound, at_bound_u)
             # and so is one that the step, coupled to the others, pushes out
-            frozen = at_bound | ((b <= shared.lower) & (db < 0)) \
-                | ((b >= shared.upper) & (db > 0))
-            frozen_u = at_bound_u | ((delta <= THETA_LO) & (dd < 0)) \
-                | ((delta >= THETA_HI) & (dd > 0))
+            frozen = at_bound | _pushed_out(b, db, shared.lower, shared.upper)
+            frozen_u = at_bound_u | _pushed_out(delta, dd, THETA_LO, THETA_HI)
             if (frozen != at_bound).any() or (frozen_u != at_bound_u).any():
                 db, dd = _step(*blocks, lam, frozen, frozen_u)
             new_phi = phi.copy()
