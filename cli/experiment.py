@@ -63,6 +63,9 @@ def paper(
     no_baseline: Annotated[bool, typer.Option(
         "--no-baseline", help="Skip the physics-only baseline (needs the engine model).")
     ] = False,
+    no_figures: Annotated[bool, typer.Option(
+        "--no-figures", help="Write the tables only (no PNG figures; an earlier run's figures "
+        "in OUT are removed, as they may no longer match the tables).")] = False,
     quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON summary only.")] = False,
 ):
@@ -89,7 +92,8 @@ def paper(
             ablation_seeds=None if ablation_seeds is None else
             _seeds(ablation_seeds, "--ablation-seeds"),
             parts=tuple(parts), small_units=tuple(parse_units(small_units, "--small-units")),
-            epochs=epochs, device=device, alpha=alpha, baseline=not no_baseline)
+            epochs=epochs, device=device, alpha=alpha, baseline=not no_baseline,
+            figures=not no_figures)
         df, meta = read_dataset(data)
         log = (lambda s: None) if as_json or quiet else \
             (lambda s: console(stderr=True).print(s))

@@ -119,14 +119,18 @@ def test_experiment_paper_runs_and_resumes_from_its_cache(runner, features_parqu
     figures = {p.name for p in (out / "figures").glob("*.png")}
     assert {"theta_hat.png", "training_curves.png", "rul_baseline.png",
             "rul_main_cnn_hybrid.png"} <= figures
-    second = json.loads(ok(run(runner, *args)).stdout)
+    # the reruns write the tables only: the first run's figures are removed, not left beside
+    # tables they may no longer match
+    second = json.loads(ok(run(runner, *args, "--no-figures")).stdout)
     assert second["trained"] == 0 and second["cached"] == 10
+    assert second["report"]["figures"] == [] and not (out / "figures").exists()
     assert pd.read_csv(out / "runs.csv").drop(columns="seconds").equals(
         rows.drop(columns="seconds"))
+    assert (out / "tables.md").read_text() == md
     # an interrupted run (no result.json) is the only one redone
     key = rows[rows.part == "small"].key.iloc[0]
     (out / "runs" / key / "result.json").unlink()
-    third = json.loads(ok(run(runner, *args)).stdout)
+    third = json.loads(ok(run(runner, *args, "--no-figures")).stdout)
     assert third["trained"] == 1 and third["cached"] == 9
 
 
@@ -138,7 +142,7 @@ def test_experiment_reports_a_shared_run_under_each_part(runner, features_parque
     out = tmp_path / "exp"
     r = json.loads(ok(run(runner, "experiment", "paper", "--data", features_parquet, "--out",
                           out, "--seeds", "1", "--epochs", "1", "--ablations", "features",
-                          "--device", "cpu", "--json")).stdout)
+                          "--device", "cpu", "--no-figures", "--json")).stdout)
     # main 2 models x 2 sets; features 5 calibrated sets (data-driven and hybrid are main's)
     # and 3 perfect-calibration sets
     assert r["runs"] == 12 and r["trained"] == 10 and r["cached"] == 2

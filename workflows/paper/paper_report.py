@@ -12,7 +12,9 @@ Written into the experiment's output directory (atomically, :mod:`prognostics.ou
   / data-driven`` of the means.
 - the paper's claims, each marked reproduced or not with the numbers (``tables.md``).
 - ``figures/``: predicted vs true RUL per test unit (per-cycle mean, min/max band, conformal
-  interval), θ̂ trajectories, training curves.
+  interval), θ̂ trajectories, training curves. Without figures (``ExperimentConfig.figures``
+  False, ``--no-figures``) an earlier run's figures are removed rather than left beside
+  tables they may no longer match.
 
 ``s`` is the NASA score summed over all test samples (the paper's ``s``; it scales with the
 number of samples, so compare it within one data set only).
@@ -170,7 +172,9 @@ def _ensemble(out: Path, rows: pd.DataFrame) -> tuple[dict, pd.DataFrame] | None
 
 
 def _main_table(out: Path, rows: pd.DataFrame, agg: pd.DataFrame, base: dict | None,
-                figures: Path) -> tuple[pd.DataFrame, dict]:
+                figures: Path | None) -> tuple[pd.DataFrame, dict]:
+    """The main table and its seed ensembles; their figures drawn into ``figures`` (None:
+    none drawn)."""
     from prognostics.plots import plot_rul
 
     head = ["model", "inputs", "runs", "RMSE", "s", "RMSE (last cycle)", "s (last cycle)",
@@ -198,8 +202,9 @@ def _main_table(out: Path, rows: pd.DataFrame, agg: pd.DataFrame, base: dict | N
                           f"{m['last']['overall']['rmse']:.3g}",
                           f"{m['last']['overall']['score']:.3g}",
                           f"{m['horizon']['mean']:.3g}"])
-            plot_rul(pc, f"{model.upper()} {s}: ensemble of {len(sel)} seeds",
-                     figures / f"rul_main_{model}_{s}.png")
+            if figures is not None:
+                plot_rul(pc, f"{model.upper()} {s}: ensemble of {len(sel)} seeds",
+                         figures / f"rul_main_{model}_{s}.png")
     b = _base_cells(base)
     if b:
         table.append(["physics", "baseline (θ̂ HI trend)", 1,
@@ -366,16 +371,21 @@ def _claims(agg: pd.DataFrame) -> list[str]:
 def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataFrame,
                  cfg) -> dict:
     """Write everything listed in the module docstring; returns the paths written."""
-    from prognostics.baseline import theta_per_cycle
-    from prognostics.plots import plot_rul, plot_theta, plot_training_curves
+    from prognostics.plots import plot_rul
 
     out = Path(out)
     figures, tables = out / "figures", out / "tables"
+    draw = cfg.figures
+    if not draw and figures.is_dir():  # an earlier run's figures: they may not match now
+        for png in figures.glob("*.png"):
+            png.unlink()
+        if not any(figures.iterdir()):
+            figures.rmdir()
     rows = run_rows(records, base)
     write_table(out / "runs.csv", rows)
     trained = rows[rows.part != "baseline"].copy()
     agg = _agg(trained, ["part", "model", "inputs", "perturbation"])
-    main, _ = _main_table(out, trained, agg, base, figures)
+    main, _ = _main_table(out, trained, agg, base, figures if draw else None)
     sections = {"main": ("Main table: data-driven vs hybrid (test units, mean ± std over seeds)",
                          main),
                 "horizon": ("Prediction horizon t_EOL - t(|Δ| <= 5) per test unit [cycles], "
@@ -412,7 +422,7 @@ def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataF
                                  _conformal_table(agg, cfg.alpha))
         for s in ("data-driven", "hybrid"):
             sel = trained[(trained.part == "conformal") & (trained.inputs == s)]
-            if len(sel):
+            if draw and len(sel):
                 p = pd.read_parquet(out / "runs" / sel["key"].iloc[0] / "predictions.parquet")
                 plot_rul(per_cycle(p), f"CNN {s} with conformal interval (seed "
                          f"{int(sel['seed'].iloc[0])})", figures / f"rul_conformal_{s}.png")
@@ -426,6 +436,18 @@ def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataF
     if claims:
         md += ["## The paper's claims on this data", "", *claims, ""]
     write_text(out / "tables.md", "\n".join(md))
+    if draw:
+        _figures(out, records, base, df, figures)
+    return {"tables": str(out / "tables.md"), "runs": str(out / "runs.csv"),
+            "figures": sorted(str(p) for p in figures.glob("*.png"))}
+
+
+def _figures(out: Path, records: list[dict], base: dict | None, df: pd.DataFrame,
+             figures: Path) -> None:
+    """θ̂ per cycle, the physics baseline's RUL and the main runs' training curves."""
+    from prognostics.baseline import theta_per_cycle
+    from prognostics.plots import plot_rul, plot_theta, plot_training_curves
+
     hats = [q for q in THETA_NAMES if q + "_hat" in df.columns]
     if hats:
         th = theta_per_cycle(df)
@@ -443,5 +465,3 @@ def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataF
             curves[label] = r["history"]
     if curves:
         plot_training_curves(curves, figures / "training_curves.png")
-    return {"tables": str(out / "tables.md"), "runs": str(out / "runs.csv"),
-            "figures": sorted(str(p) for p in figures.glob("*.png"))}

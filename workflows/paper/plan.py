@@ -50,6 +50,9 @@ class ExperimentConfig:
     device: str = "auto"
     alpha: float = 0.1
     baseline: bool = True
+    #: draw the figures; False writes the tables only and removes the figures an earlier run
+    #: drew into the same output (they would no longer match its tables)
+    figures: bool = True
 
     def checked(self) -> ExperimentConfig:
         unknown = [p for p in self.parts if p not in PARTS]
