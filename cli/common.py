@@ -8,7 +8,8 @@ import json
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Annotated, Literal
+from pathlib import Path
+from typing import Annotated, Literal, get_args
 
 import typer
 from typer.core import TyperCommand
@@ -20,10 +21,28 @@ QUIET_HELP = ("Print nothing but errors and warnings: no progress bars, status l
               "closing summary (the result is in the output; --json prints a summary). A "
               "command whose result is a printed table still prints it. Every command takes it.")
 
+def names_a_path(annotation) -> bool:
+    """Whether a parameter's annotation is a path (``Path``, ``Path | None``, ``list[Path]``)."""
+    return annotation is Path or any(names_a_path(a) for a in get_args(annotation))
+
+
 class PlainUsageCommand(TyperCommand):
     """A command whose usage line names its arguments as click and POSIX do (``MODEL_DIR``,
-    ``[DATA]``), not typer's ``{MODEL_DIR}``. Every command is registered with it
+    ``[DATA]``), not typer's ``{MODEL_DIR}``, and that refuses an empty path (``""`` would
+    otherwise become ``Path("")``, the current directory: an unset shell variable in
+    ``--out "$DIR"`` must not read or replace ``.``). Every command is registered with it
     (``@app.command(NAME, cls=PlainUsageCommand)``)."""
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        if not ctx.resilient_parsing:
+            opts, _, _ = self.make_parser(ctx).parse_args(args=list(args))
+            for param in self.get_params(ctx):
+                raw = opts.get(param.name)
+                values = raw if isinstance(raw, list | tuple) else (raw,)
+                if "" in values and names_a_path(param.type_descriptor.annotation):
+                    raise typer.BadParameter("an empty path; name a file or folder",
+                                             ctx=ctx, param=param)
+        return super().parse_args(ctx, args)
 
     def collect_usage_pieces(self, ctx) -> list[str]:
         pieces = [self.options_metavar] if self.options_metavar else []

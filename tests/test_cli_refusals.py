@@ -195,3 +195,45 @@ def test_the_packaged_sample_fleet_is_never_an_output(runner, overwrite):
             *overwrite)
     assert_user_error(r, "is inside hyprog's package", "not even with --overwrite")
     assert sorted(p.stat().st_size for p in TINY.rglob("*.parquet")) == before
+
+
+def _path_requests():
+    """``(command path, arguments)``: every path parameter of every command given ``""``."""
+    import typer.main
+
+    from cli.common import names_a_path
+
+    def walk(cmd, names):
+        if hasattr(cmd, "commands"):
+            for name, sub in cmd.commands.items():
+                yield from walk(sub, (*names, name))
+            return
+        positional = [p for p in cmd.params if p.param_type_name == "argument"]
+        for p in cmd.params:
+            if not names_a_path(p.type_descriptor.annotation):
+                continue
+            if p.param_type_name == "argument":
+                before = ["x"] * positional.index(p)
+                yield names, (*before, ""), p.name.upper()
+            else:
+                yield names, (p.opts[0], ""), p.opts[0]
+
+    return list(walk(typer.main.get_command(app), ()))
+
+
+PATH_REQUESTS = _path_requests()
+
+
+def test_every_command_has_path_parameters_to_check():
+    commands = {names for names, _, _ in PATH_REQUESTS}
+    assert {("train",), ("calibrate", "run"), ("adapt",), ("pipeline",)} <= commands
+
+
+@pytest.mark.parametrize("names,args,culprit", PATH_REQUESTS,
+                         ids=[" ".join((*n, c)) for n, _, c in PATH_REQUESTS])
+def test_an_empty_path_is_refused_not_read_as_the_current_folder(runner, tmp_path, monkeypatch,
+                                                                  names, args, culprit):
+    monkeypatch.chdir(tmp_path)
+    r = run(runner, *names, *args)
+    assert_user_error(r, culprit, "empty path")
+    assert leftovers(tmp_path) == []
