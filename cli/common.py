@@ -21,6 +21,7 @@ QUIET_HELP = ("Print nothing but errors and warnings: no progress bars, status l
               "closing summary (the result is in the output; --json prints a summary). A "
               "command whose result is a printed table still prints it. Every command takes it.")
 
+
 def names_a_path(annotation) -> bool:
     """Whether a parameter's annotation is a path (``Path``, ``Path | None``, ``list[Path]``)."""
     return annotation is Path or any(names_a_path(a) for a in get_args(annotation))
