@@ -16,7 +16,7 @@ import pytest
 from calibration.adaptation import adapt, assess, load_adapted, write_adapted
 from calibration.adaptation.adapt import prebuilt_groups, record_groups
 from calibration.adaptation.data import MODEL_ERROR, fleet_data
-from calibration.adaptation.fleet_fit import Shared, evaluate, fit_fleet
+from calibration.adaptation.fleet_fit import MAX_ITER, Shared, evaluate, fit_fleet
 from calibration.adaptation.groups import build_groups
 from calibration.adaptation.selection import (
     MIN_GAIN,
@@ -169,7 +169,7 @@ def test_a_fit_whose_optimum_is_on_the_bounds_converges_to_it(candidate_model, s
     (Holding a parameter only when the step pushed it out released and clipped such
     parameters every other iteration: this fit stopped at the 40-iteration cap 1 % above
     its optimum.)"""
-    from calibration.adaptation.fleet_fit import MAX_ITER, THETA_HI, THETA_LO, _normal_equations
+    from calibration.adaptation.fleet_fit import THETA_HI, THETA_LO, _normal_equations
 
     data, _ = fleet_data(shaped, CHANNELS, model_error=0.0)
     groups = candidate_model.candidates
@@ -278,7 +278,8 @@ def test_a_condition_the_model_cannot_evaluate_is_the_worst_not_left_out(monkeyp
     k = len(THETA_NAMES)
 
     def fake_fit(model, train, shared, phi0=None, delta0=None, **kw):
-        return SimpleNamespace(delta=np.zeros((train.n_units, k)), phi=np.zeros(1))
+        return SimpleNamespace(delta=np.zeros((train.n_units, k)), phi=np.zeros(1),
+                               iterations=3)
 
     def fake_evaluate(model, test, delta, phi, derivatives=False, x0=None):
         ok = np.full(len(test.y), test.condition[0] != 2)  # condition 2 never converges
@@ -292,7 +293,7 @@ def test_a_condition_the_model_cannot_evaluate_is_the_worst_not_left_out(monkeyp
     o = selection.condition_out(None, data, Shared.none(), start)
     assert np.isinf(o.chi2[2]) and np.isinf(o.worst) and np.isinf(o.chi2_out)
     assert o.unusable[2] == int((data.condition == 2).sum()) and o.unusable[1] == 0
-    assert o.chi2[1] == 1.0
+    assert o.chi2[1] == 1.0 and o.iterations == {c: 3 for c in range(1, 7)}
     assert not enters(o, OutOfSample(50.0, chi2={1: 50.0}))
 
 
@@ -346,6 +347,9 @@ def test_adapt_adds_nothing_to_a_fleet_the_model_already_explains(candidate_mode
     rec = res.record()
     assert rec["data"]["judge"] == 2 and rec["selection"]["stopped"] == "no gain"
     assert rec["data"]["unit_list"] == list(range(1, 13)) and rec["data"]["seed"] == 0
+    # every fit with a condition left out converged (none stopped at the iteration cap)
+    its = rec["selection"]["iterations_condition_out"]["after"]
+    assert sorted(its) == [1, 2, 3, 4, 5, 6] and 0 < max(its.values()) < MAX_ITER, its
     # with the right model every condition left out is predicted within a few of its own
     # std (the posterior's and the noise's; 42 conditions x channels)
     assert max(worst_z(res.selection.after).values()) < 4.0

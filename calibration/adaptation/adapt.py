@@ -132,6 +132,8 @@ class Adaptation:
                                                  "after": sel.after.mean_error_pct},
                 "unusable_condition_out": {"before": sel.before.unusable,
                                            "after": sel.after.unusable},
+                "iterations_condition_out": {"before": sel.before.iterations,
+                                             "after": sel.after.iterations},
                 "std_pct_condition_out": {"before": sel.before.std_pct,
                                           "after": sel.after.std_pct},
                 "theta_early_life": {"before": self.theta_summary(sel.base_fit),

@@ -80,7 +80,9 @@ class OutOfSample:
     (channel -> 100 (mean prediction - mean reading) / mean reading over its samples),
     ``std_pct`` (channel -> the std of that error under the fit's posterior and noise, in
     % of the same mean reading: :func:`.fleet_fit.mean_prediction_std`), ``unusable`` (the
-    held-out samples the model could not evaluate: its solve did not converge there);
+    held-out samples the model could not evaluate: its solve did not converge there),
+    ``iterations`` (the Gauss-Newton iterations of the fit without that condition:
+    :data:`.fleet_fit.MAX_ITER` says it stopped at the cap, short of its optimum);
     ``chi2_out`` over every held-out sample. A condition none of whose samples the model can
     evaluate has ``chi2`` infinite, and so has ``chi2_out``: a candidate that breaks the
     model at a condition predicts it worst of all, not "not at all, so not counted" (an
@@ -91,6 +93,7 @@ class OutOfSample:
     mean_error_pct: dict = field(default_factory=dict)
     std_pct: dict = field(default_factory=dict)
     unusable: dict = field(default_factory=dict)
+    iterations: dict = field(default_factory=dict)
 
     @property
     def worst(self) -> float:
@@ -132,6 +135,7 @@ def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> Ou
         delta = np.where(row[:, None] >= 0, fit.delta[np.maximum(row, 0)], 0.0)
         ev, e, ok = evaluate(model, test, delta, fit.phi, derivatives=True)
         res.unusable[int(c)] = int((~ok).sum())
+        res.iterations[int(c)] = fit.iterations
         if not ok.any():
             res.chi2[int(c)] = float("inf")
             res.mean_error_pct[int(c)] = {ch: float("nan") for ch in data.channels}
