@@ -17,6 +17,7 @@ the observability check (:mod:`calibration.observability`) and the result
 from __future__ import annotations
 
 import importlib
+import inspect
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -43,6 +44,21 @@ class Estimator(ABC):
 
     def __init__(self, model: SteadyStateModel | None = None):
         self.model: SteadyStateModel = model if model is not None else default_model()
+
+    @classmethod
+    def option_names(cls) -> set[str]:
+        """The options ``__init__`` takes (besides the model)."""
+        return set(inspect.signature(cls.__init__).parameters) - {"self", "model"}
+
+    @classmethod
+    def check_options(cls, options: dict) -> None:
+        """Refuse ``options`` this estimator does not take, before any work (building the
+        estimator builds the engine model, which a first run compiles). Subclasses whose
+        options carry rules of their own check those too."""
+        unknown = sorted(set(options) - cls.option_names())
+        if unknown:
+            raise InputError(f"calibration method {cls.name!r}: no option "
+                             f"{', '.join(unknown)}")
 
     @abstractmethod
     def estimate(self, df_unit: pd.DataFrame, setup: CalibrationSetup | None = None,

@@ -403,7 +403,8 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     ``model_effects``."""
     setup = setup or CalibrationSetup()
     options = dict(options or {})
-    estimator_class(method)  # unknown method: clear error before any work
+    # an unknown method or a bad option: a clear error before any work (no model built)
+    estimator_class(method).check_options(options)
     specs = effect_specs(effects)  # a bad specification: clear error before any work
     if jobs < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")

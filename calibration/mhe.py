@@ -482,8 +482,18 @@ class MHEEstimator(Estimator):
     per_cycle = False
 
     def __init__(self, model=None, **options):
+        self.check_options(options)
         super().__init__(model)
         self.options = MHEOptions(**options)
+
+    @classmethod
+    def option_names(cls) -> set[str]:
+        return set(MHEOptions.__dataclass_fields__)
+
+    @classmethod
+    def check_options(cls, options: dict) -> None:
+        super().check_options(options)
+        MHEOptions(**options)  # its own rules (window, stride, mode, hessian)
 
     def estimate(self, df_unit: pd.DataFrame, setup: CalibrationSetup | None = None,
                  source=None, p=None) -> CalibrationResult:

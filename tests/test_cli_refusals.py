@@ -237,3 +237,22 @@ def test_an_empty_path_is_refused_not_read_as_the_current_folder(runner, tmp_pat
     r = run(runner, *names, *args)
     assert_user_error(r, culprit, "empty path")
     assert leftovers(tmp_path) == []
+
+
+def test_a_bad_estimator_option_is_refused_before_the_model_is_built(runner, tmp_path,
+                                                                       monkeypatch):
+    """The estimator's options are checked before the data are checked against the engine
+    model (whose first build compiles it: half a minute spent before a refusal)."""
+    import calibration.calibrate_fleet as cf
+    from calibration import CalibrationSetup
+
+    def no_model(*args, **kwargs):
+        raise AssertionError("the engine model was built before the options were checked")
+
+    monkeypatch.setattr(cf, "worker_model", no_model)
+    r = run(runner, "calibrate", TINY, "--method", "mhe", "--stride", "0", "--out",
+            tmp_path / "o")
+    assert_user_error(r, "stride 0")
+    with pytest.raises(InputError, match="'ukf': no option stride"):
+        cf.calibrate_fleet(TINY, "ukf", CalibrationSetup(), options={"stride": 3})
+    assert leftovers(tmp_path) == []
