@@ -22,7 +22,8 @@ With converged fits the three agree, whatever the start; the table beside the re
 figures says how much of those came from fits that stopped short. Per row: chi2 per sample
 and channel with each condition left out, that of condition 4 (FD002's one part-power
 point), the worst mean error with its condition left out (and without condition 4), and the
-Gauss-Newton iterations of the six held-out fits (40: stopped at the cap).
+Gauss-Newton iterations of the six held-out fits (``fleet_fit.MAX_ITER``, 40: stopped at
+the cap).
 """
 
 from __future__ import annotations

@@ -47,15 +47,23 @@ class Estimator(ABC):
 
     @classmethod
     def option_names(cls) -> set[str]:
-        """The options ``__init__`` takes (besides the model)."""
-        return set(inspect.signature(cls.__init__).parameters) - {"self", "model"}
+        """The options ``__init__`` takes by name (besides the model); ``*args`` and
+        ``**kwargs`` are not options of those names (see :meth:`check_options`)."""
+        return {n for n, p in inspect.signature(cls.__init__).parameters.items()
+                if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)} - {"self", "model"}
+
+    @classmethod
+    def takes_any_option(cls) -> bool:
+        """Whether ``__init__`` takes ``**kwargs`` (then no option name can be refused)."""
+        return any(p.kind is p.VAR_KEYWORD
+                   for p in inspect.signature(cls.__init__).parameters.values())
 
     @classmethod
     def check_options(cls, options: dict) -> None:
         """Refuse ``options`` this estimator does not take, before any work (building the
         estimator builds the engine model, which a first run compiles). Subclasses whose
         options carry rules of their own check those too."""
-        unknown = sorted(set(options) - cls.option_names())
+        unknown = [] if cls.takes_any_option() else sorted(set(options) - cls.option_names())
         if unknown:
             raise InputError(f"calibration method {cls.name!r}: no option "
                              f"{', '.join(unknown)}")

@@ -491,6 +491,10 @@ class MHEEstimator(Estimator):
         return set(MHEOptions.__dataclass_fields__)
 
     @classmethod
+    def takes_any_option(cls) -> bool:  # ``**options`` are MHEOptions' fields, no others
+        return False
+
+    @classmethod
     def check_options(cls, options: dict) -> None:
         super().check_options(options)
         MHEOptions(**options)  # its own rules (window, stride, mode, hessian)

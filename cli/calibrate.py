@@ -133,7 +133,7 @@ def run(
     """
     import warnings
 
-    from calibration import UnobservableWarning
+    from calibration import UnobservableWarning, estimator_class
     from calibration.calibrate_fleet import calibrate_fleet
     from calibration.consistency import with_measured_noise
     from calibration.discrepancy.drift_mle import setup_with_drift_mle
@@ -145,6 +145,7 @@ def run(
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per, noise,
                        model_error)
         opts = _options(method, window, stride, mode, hessian)
+        estimator_class(method).check_options(opts)  # before the work below builds the model
         unit_list = parse_units(units)
         adapted = None
         if model_effects is not None:
@@ -221,12 +222,17 @@ def compare_cmd(
     with user_errors(), warnings.catch_warnings():
         warnings.simplefilter("ignore", UnobservableWarning)  # reported in the table
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
-        setup = setup_with_drift_mle(drift, data, setup, parse_units(units))
         names = parse_list(methods, "--methods")
-        for m in names:
-            estimator_class(m)
         mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
         opts = {"mhe": mhe, "map_cycle": _given(hessian=hessian)}
+        unused = [k for k in mhe if not any(k in opts.get(m, {}) for m in names)]
+        if unused:
+            raise CliError(f"{', '.join('--' + k for k in unused)}: options of the mhe method"
+                           f"{' (and map_cycle)' if unused == ['hessian'] else ''}, which "
+                           f"--methods {methods} does not run")
+        for m in names:  # before the drift's estimate and the runs, which build the model
+            estimator_class(m).check_options(opts.get(m, {}))
+        setup = setup_with_drift_mle(drift, data, setup, parse_units(units))
         with progress_bar("comparing", as_json or quiet) as update:
             report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler,
                              progress=None if update is None else

@@ -265,6 +265,34 @@ def test_discover_keeps_a_users_file_in_its_earlier_report(runner, tmp_path):
     assert not (data / "r").exists()
 
 
+def test_paper_report_without_figures_removes_only_its_own(tmp_path):
+    """``experiment paper --no-figures`` removes an earlier run's figures (they may not match
+    the new tables) but keeps a user's file beside them, and never deletes through a
+    ``figures`` that is a symbolic link to somewhere else."""
+    from workflows.paper.paper_report import _remove_own_figures
+
+    figures = tmp_path / "out" / "figures"
+    figures.mkdir(parents=True)
+    own = ("rul_main_cnn_hybrid.png", "rul_conformal_hybrid.png", "theta_hat.png",
+           "rul_baseline.png", "training_curves.png")
+    for name in (*own, "my_sketch.png"):
+        (figures / name).write_bytes(b"png")
+    _remove_own_figures(figures)
+    assert sorted(p.name for p in figures.iterdir()) == ["my_sketch.png"]
+    (figures / "my_sketch.png").unlink()
+    (figures / "theta_hat.png").write_bytes(b"png")
+    _remove_own_figures(figures)
+    assert not figures.exists()  # empty once the report's figures are gone: removed
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "theta_hat.png").write_bytes(b"someone else's")
+    figures.symlink_to(elsewhere, target_is_directory=True)
+    _remove_own_figures(figures)
+    assert figures.is_symlink() and (elsewhere / "theta_hat.png").read_bytes() == \
+        b"someone else's"
+
+
 # ------------------------------------------------------------------------------------------
 # fingerprints (pinned) and the JSON converter
 # ------------------------------------------------------------------------------------------

@@ -137,6 +137,8 @@ class FleetFit:
 
     @property
     def iterations(self) -> int:
+        """Gauss-Newton steps taken (:data:`MAX_ITER`: stopped at the cap; fewer: stopped by
+        the step or cost rule, which does not by itself prove the optimum reached)."""
         return len(self.history) - 1
 
     def chi2_per_sample(self) -> float:

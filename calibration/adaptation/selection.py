@@ -82,7 +82,8 @@ class OutOfSample:
     % of the same mean reading: :func:`.fleet_fit.mean_prediction_std`), ``unusable`` (the
     held-out samples the model could not evaluate: its solve did not converge there),
     ``iterations`` (the Gauss-Newton iterations of the fit without that condition:
-    :data:`.fleet_fit.MAX_ITER` says it stopped at the cap, short of its optimum);
+    :data:`.fleet_fit.MAX_ITER` says it stopped at the cap, short of its optimum; fewer says
+    only that its own stopping rule ended it, not by itself that it reached the optimum);
     ``chi2_out`` over every held-out sample. A condition none of whose samples the model can
     evaluate has ``chi2`` infinite, and so has ``chi2_out``: a candidate that breaks the
     model at a condition predicts it worst of all, not "not at all, so not counted" (an

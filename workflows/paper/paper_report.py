@@ -376,11 +376,8 @@ def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataF
     out = Path(out)
     figures, tables = out / "figures", out / "tables"
     draw = cfg.figures
-    if not draw and figures.is_dir():  # an earlier run's figures: they may not match now
-        for png in figures.glob("*.png"):
-            png.unlink()
-        if not any(figures.iterdir()):
-            figures.rmdir()
+    if not draw:  # an earlier run's figures may not match the tables any more
+        _remove_own_figures(figures)
     rows = run_rows(records, base)
     write_table(out / "runs.csv", rows)
     trained = rows[rows.part != "baseline"].copy()
@@ -439,7 +436,34 @@ def write_report(out: Path, records: list[dict], base: dict | None, df: pd.DataF
     if draw:
         _figures(out, records, base, df, figures)
     return {"tables": str(out / "tables.md"), "runs": str(out / "runs.csv"),
-            "figures": sorted(str(p) for p in figures.glob("*.png"))}
+            "figures": [str(p) for p in _own_figures(figures)] if draw else []}
+
+
+#: The figures this report draws; nothing else in ``OUT/figures`` is the report's.
+OWN_FIGURES = ("rul_main_*.png", "rul_conformal_*.png", "theta_hat.png", "rul_baseline.png",
+               "training_curves.png")
+
+
+def _own_figures(figures: Path) -> list[Path]:
+    """The report's own PNGs in ``figures`` (see :data:`OWN_FIGURES`), sorted."""
+    if not figures.is_dir():
+        return []
+    return sorted({p for pattern in OWN_FIGURES for p in figures.glob(pattern)})
+
+
+def _remove_own_figures(figures: Path) -> None:
+    """Delete an earlier run's figures of this report, and nothing else.
+
+    A user's own files in ``OUT/figures`` are kept, and a ``figures`` that is a symbolic link
+    is left alone (deleting through it would reach outside ``OUT``); the folder is removed only
+    when nothing is left in it.
+    """
+    if figures.is_symlink() or not figures.is_dir():
+        return
+    for png in _own_figures(figures):
+        png.unlink()
+    if not any(figures.iterdir()):
+        figures.rmdir()
 
 
 def _figures(out: Path, records: list[dict], base: dict | None, df: pd.DataFrame,
