@@ -77,6 +77,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -94,8 +95,9 @@ from engine_model.validation import InputError
 from .base import estimator_class
 from .estimation_setup import CalibrationSetup
 from .measurement_noise import noise_from_data
+from .observability import UnobservableWarning
 from .series import early_samples, prepare_unit, unit_label
-from .unit_check import N_CHECK, bound_hits, check_result, check_units_many
+from .unit_check import N_CHECK, bound_hits, check_result, check_units_many, summarise_unobservable
 
 LOCKSTEP_METHODS = ("ukf", "ekf")
 #: Most samples in one lockstep task (two DS02 units at 0.1 Hz, 80,000-130,000 samples each):
@@ -224,7 +226,12 @@ def run_task(task: dict) -> list[tuple]:
         frames = [by_unit[u] for u in task["units"]]
     model = worker_model(task.get("threads"), task.get("effects", ()))
     est = estimator_class(method)(model=model, **options)
-    results = est.estimate_many(frames, setup, task.get("source"))
+    with warnings.catch_warnings():
+        # each unit's record names its unobservable parameters; the driver warns once per
+        # group of units, in the caller's process (a worker's warning would reach stderr
+        # as Python prints it, and never the caller's report)
+        warnings.simplefilter("ignore", UnobservableWarning)
+        results = est.estimate_many(frames, setup, task.get("source"))
     out = []
     for u, f, r in zip(task["units"], frames, results, strict=True):
         # the estimator checked the frame (prepare_unit); the warnings need only its label
@@ -595,6 +602,8 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
     # in unit order, not in the order the workers finished: the same run reports the same
     run.units = {u: run.units[u] for u in sorted(run.units)}
     run.warnings = [w for rec in run.units.values() for w in rec["warnings"]]
+    for line in summarise_unobservable(run.units, setup.observability_max_std):
+        warnings.warn(line, UnobservableWarning, stacklevel=2)
     run.seconds = time.perf_counter() - t0
     return run
 

@@ -261,15 +261,39 @@ def summarise_bound_hits(units: dict) -> list[str]:
             grouped.setdefault((h["param"], h["bound"]), []).append((u, h))
     lines = []
     for (param, bound), hits in grouped.items():
-        names = [str(u) for u, _ in hits]
-        shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
         k = sum(h["samples"] for _, h in hits)
         n = sum(h["of"] for _, h in hits)
-        unit_word = "unit" if len(hits) == 1 else "units"
         lines.append(f"{param} is at its bound {bound:g} in {len(hits)} of {len(units)} units"
-                     f" ({unit_word} {shown}; {k:,} of their {n:,} samples): {AT_BOUND}")
+                     f" ({_listed([u for u, _ in hits])}; {k:,} of their {n:,} samples): "
+                     f"{AT_BOUND}")
     return lines
 
 
+def _listed(units: list) -> str:
+    """``unit 3`` or ``units 1, 2, 3, 4, 5, ...`` (the first five)."""
+    names = [str(u) for u in units]
+    return ("unit " if len(names) == 1 else "units ") + ", ".join(names[:5]) + \
+        (", ..." if len(names) > 5 else "")
+
+
+def summarise_unobservable(units: dict, prior_std: float) -> list[str]:
+    """One line per set of unobservable parameters and sensors over a fleet: ``units`` maps a
+    unit to its record with ``"unobservable"`` (the parameters held at the prior mean, see
+    :mod:`calibration.observability`) and ``"sensors"``. A fleet of C-MAPSS units at one
+    condition leaves the same parameters unobservable in every unit: one line, not one per
+    unit (each unit's list stays in the JSON report)."""
+    grouped: dict[tuple, list] = {}
+    for u, rec in units.items():
+        if rec.get("unobservable"):
+            grouped.setdefault((tuple(rec["unobservable"]), tuple(rec.get("sensors", ()))),
+                               []).append(u)
+    return [f"health parameter(s) {', '.join(params)} cannot be observed with sensors "
+            f"{', '.join(sensors)} in {len(us)} of {len(units)} units ({_listed(us)}: the "
+            f"Fisher information is rank-deficient, or the data pin them down less than the "
+            f"prior std {prior_std:g} does); held at the prior mean, reported as NaN"
+            for (params, sensors), us in grouped.items()]
+
+
 __all__ = ["ChannelCheck", "CONVERSIONS", "bound_hits", "check_result", "check_units",
-           "check_units_many", "compare_channels", "summarise_bound_hits"]
+           "check_units_many", "compare_channels", "summarise_bound_hits",
+           "summarise_unobservable"]

@@ -35,7 +35,7 @@ def adapt(
     early_cycles: Annotated[int, typer.Option(
         "--early-cycles", help="Cycles of early life used (cycle <= this).", min=1)] = 20,
     units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
-                                              "(default: all).")] = None,
+                                              "or ranges, e.g. 1-20,25 (default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the held-out engine folds.", min=0)]
     = 0,
     model_error: Annotated[float | None, typer.Option(

@@ -91,7 +91,8 @@ PriorStd = Annotated[float | None, typer.Option(
     "--prior-std", help="Prior std of theta (default: 0.02).")]
 DriftPer = Annotated[str | None, typer.Option(
     "--drift-per", help="cycle, time or auto (default: auto: cycle when the data have cycles).")]
-Units = Annotated[str | None, typer.Option("--units", help="Comma-separated units (default: all).")]
+Units = Annotated[str | None, typer.Option(
+    "--units", help="Comma-separated units or ranges, e.g. 1-20,25 (default: all).")]
 Jobs = Annotated[int, typer.Option("--jobs", help="Worker processes (default: 1).")]
 Scheduler = Annotated[str | None, typer.Option(
     "--scheduler", help="Dask scheduler address (tcp://host:port), or 'local' for a local "

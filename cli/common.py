@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -378,18 +379,36 @@ def parse_list(text: str | None, option: str) -> tuple[str, ...] | None:
     return tuple(split_items(text, option))
 
 
+#: The most units one range of ``--units`` may name (``1-1000000000`` is a typing error, not
+#: a fleet, and would build a list of that length).
+MAX_RANGE_UNITS = 1_000_000
+
+
 def parse_units(text: str | None, option: str = "--units") -> list[int] | None:
-    """``"2,5,10"`` -> ``[2, 5, 10]``; None (all units) when the option was not given (an
-    empty value is an error, not "all")."""
+    """``"2,5,10"`` -> ``[2, 5, 10]``, ``"1-3,7"`` -> ``[1, 2, 3, 7]`` (a range includes
+    both ends); None (all units) when the option was not given (an empty value is an error,
+    not "all")."""
     if text is None:
         return None
-    items = split_items(text, option)
-    try:
-        units = [int(u) for u in items]
-    except ValueError:
-        raise CliError(f"{option} {text}: expected comma-separated integers") from None
-    twice = sorted({u for u in units if units.count(u) > 1})
-    if twice:  # "1,01"
+    units = []
+    for item in split_items(text, option):
+        first, dash, last = item.partition("-")
+        try:
+            if dash and first:  # "1-3"; "-3" is the integer -3
+                a, b = int(first), int(last)
+                if b < a:
+                    raise CliError(f"{option} {text}: range {item} runs backwards")
+                if b - a >= MAX_RANGE_UNITS:
+                    raise CliError(f"{option} {text}: range {item} names more than "
+                                   f"{MAX_RANGE_UNITS:,} units")
+                units += range(a, b + 1)
+            else:
+                units.append(int(item))
+        except ValueError:
+            raise CliError(f"{option} {text}: expected comma-separated integers or ranges "
+                           f"(e.g. 1-20,25)") from None
+    twice = sorted(u for u, n in Counter(units).items() if n > 1)
+    if twice:  # "1,01", "1-5,3"
         raise CliError(f"{option} {text}: unit(s) {', '.join(map(str, twice))} listed twice")
     return units
 

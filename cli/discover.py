@@ -61,7 +61,7 @@ def discover(
         "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle' (default: "
         "mle).")] = None,
     units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
-                                              "(default: all).")] = None,
+                                              "or ranges, e.g. 1-20,25 (default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     model_effects: Annotated[Path | None, typer.Option(

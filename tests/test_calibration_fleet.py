@@ -258,7 +258,21 @@ def test_cli_calibrate_sensor_subset_reports_unobservable(small, tmp_path):
     # before the bleed-valve schedule of issue 12, HPT efficiency since)
     weak = rep["units"]["1"]["unobservable"]
     assert len(weak) == 1 and weak[0] in PAPER_THETA, weak
-    assert any("cannot be observed" in w for w in rep["warnings"])
+    assert [w for w in rep["warnings"] if "cannot be observed" in w] == [
+        f"health parameter(s) {weak[0]} cannot be observed with sensors P2, P15 in 1 of 1 "
+        "units (unit 1: the Fisher information is rank-deficient, or the data pin them down "
+        "less than the prior std 0.02 does); held at the prior mean, reported as NaN"]
+    # worker processes: the same report, and no warning of theirs on stderr as Python
+    # prints it (file and line of the source)
+    r2 = runner.invoke(app, ["calibrate", str(path), "--method", "ekf", "--units", "1,2",
+                             "--jobs", "2", "--sensors", "P2,P15", "--out",
+                             str(tmp_path / "f2"), "--json"])
+    assert r2.exit_code == 0, r2.output
+    rep2 = json.loads(r2.stdout)
+    assert "UnobservableWarning" not in r2.stderr
+    assert [w for w in rep2["warnings"] if "cannot be observed" in w] == [
+        w.replace("1 of 1 units (unit 1:", "2 of 2 units (units 1, 2:")
+        for w in rep["warnings"] if "cannot be observed" in w]
     feats, _ = datasets.read_dataset(tmp_path / "f")
     for q in PAPER_THETA:
         assert (feats[q + "_hat"].isna().all() if q == weak[0]
@@ -335,6 +349,25 @@ def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
         f"HPT_eff_mod_hat is at its bound -0.15 in 1 of 9 units (unit 8; 1 of their 150 "
         f"samples): {AT_BOUND}"]
     assert summarise_bound_hits({1: {"samples": 5, "at_bound": []}}) == []
+
+
+def test_unobservable_parameters_are_summarised_over_the_fleet():
+    """FD003 with every parameter printed the same unobservability warning for each of its
+    66 units; one line per set of parameters and sensors now, the units counted."""
+    from calibration.unit_check import summarise_unobservable
+
+    both = {"unobservable": ["fan_eff_mod", "LPT_flow_mod"], "sensors": ["T24", "T30"]}
+    units = {u: both for u in range(1, 8)}
+    units[8] = {"unobservable": ["fan_eff_mod"], "sensors": ["T24"]}
+    units[9] = {"unobservable": [], "sensors": ["T24", "T30"]}
+    lines = summarise_unobservable(units, 0.02)
+    assert len(lines) == 2
+    assert lines[0].startswith("health parameter(s) fan_eff_mod, LPT_flow_mod cannot be "
+                               "observed with sensors T24, T30 in 7 of 9 units (units 1, 2, "
+                               "3, 4, 5, ...: ")
+    assert "prior std 0.02" in lines[0] and lines[0].endswith("reported as NaN")
+    assert "with sensors T24 in 1 of 9 units (unit 8: " in lines[1]
+    assert summarise_unobservable({1: units[9]}, 0.02) == []
 
 
 def test_the_consistent_model_error_brings_the_mean_nis_per_channel_to_one(tmp_path):

@@ -60,13 +60,29 @@ def test_an_empty_unit_list_is_refused_not_read_as_all(runner, tmp_path, args):
     assert leftovers(tmp_path) == []
 
 
+def test_a_unit_list_takes_ranges():
+    from cli.common import parse_units
+
+    assert parse_units("1-3,7") == [1, 2, 3, 7]
+    assert parse_units(" 2 - 4 ,10") == [2, 3, 4, 10]
+    assert parse_units("1005-1005") == [1005]
+    assert parse_units("-3,4") == [-3, 4]  # a negative number, not a range (refused later)
+    assert parse_units(None) is None
+
+
 @pytest.mark.parametrize("args, message", [
     (("simulate", "--preset", "tiny", "--units", "1,,2"), "--units '1,,2': an empty item"),
     (("simulate", "--preset", "tiny", "--units", "1,"), "--units '1,': an empty item"),
     (("discover", TINY, "--candidates", "customer_bleed,customer_bleed"),
      "--candidates customer_bleed,customer_bleed: customer_bleed listed twice"),
     (("calibrate", "compare", TINY, "--methods", "ukf,ukf"), "ukf listed twice"),
-], ids=["two-commas", "trailing-comma", "candidate-twice", "method-twice"])
+    (("simulate", "--preset", "tiny", "--units", "1-3,2"), "--units 1-3,2: unit(s) 2 listed "
+     "twice"),
+    (("simulate", "--preset", "tiny", "--units", "3-1"), "range 3-1 runs backwards"),
+    (("simulate", "--preset", "tiny", "--units", "1-2000000"), "names more than 1,000,000"),
+    (("calibrate", TINY, "--units", "1-x"), "expected comma-separated integers or ranges"),
+], ids=["two-commas", "trailing-comma", "candidate-twice", "method-twice", "unit-in-a-range",
+        "backwards-range", "huge-range", "not-a-range"])
 def test_a_list_with_an_empty_item_or_an_item_twice_is_refused(runner, tmp_path, args,
                                                                 message):
     out = () if "compare" in args else ("--out", tmp_path / "o")  # compare only prints
