@@ -21,6 +21,7 @@ from cli.common import (
     Quiet,
     console,
     echo_json,
+    parse_drift,
     parse_list,
     parse_model_error,
     parse_units,
@@ -45,16 +46,25 @@ app = typer.Typer(cls=_DefaultRun, no_args_is_help=True, **APP_SETTINGS,
                        "'hyprog calibrate DATA --out F' is 'hyprog calibrate run DATA --out F'.")
 
 
+def _with_drift_mle(drift, data, setup, units):
+    """``setup`` with the drift estimated from ``data`` when ``--drift mle`` (the estimator
+    and its imports, 0.7 s, only then)."""
+    if drift != "mle":
+        return setup
+    from calibration.discrepancy.drift_mle import setup_with_drift_mle
+
+    return setup_with_drift_mle(drift, data, setup, units)
+
+
 def _setup(params, sensors, drift, noise_scale, prior_std, drift_per, noise=None,
            model_error=None):
     from calibration import CalibrationSetup
-    from calibration.discrepancy.drift_mle import drift_value
     from engine_model.channels import THETA_NAMES
 
     p, s = parse_list(params, "--params"), parse_list(sensors, "--sensors")
     model_error = parse_model_error(model_error)
     kw = _given(params=THETA_NAMES if p == ("all",) else p, sensors=s,
-                drift=drift_value(drift), noise_scale=noise_scale,
+                drift=parse_drift(drift), noise_scale=noise_scale,
                 prior_std=prior_std, drift_per=drift_per, noise=noise, model_error=model_error)
     return CalibrationSetup(**kw)
 
@@ -137,7 +147,6 @@ def run(
     from calibration import UnobservableWarning, estimator_class
     from calibration.calibrate_fleet import calibrate_fleet
     from calibration.consistency import with_measured_noise
-    from calibration.discrepancy.drift_mle import setup_with_drift_mle
     from calibration.unit_check import AT_BOUND, summarise_bound_hits
     from engine_model.channels import XS_NAMES
 
@@ -157,7 +166,7 @@ def run(
             setup, data, adapted.effects if adapted else (), unit_list,
             consistent=model_error == "consistent",
             log=None if (as_json or quiet) else lambda m: console().print(m))
-        setup = setup_with_drift_mle(drift, data, setup, unit_list)
+        setup = _with_drift_mle(drift, data, setup, unit_list)
         with progress_bar(f"calibrating ({method})", as_json or quiet) as update:
             res = calibrate_fleet(data, method, setup, opts, unit_list, jobs, scheduler, out,
                                   keep_results=False, progress=update,
@@ -218,8 +227,6 @@ def compare_cmd(
 
     from calibration import UnobservableWarning, estimator_class
     from calibration.compare import compare, format_report
-    from calibration.discrepancy.drift_mle import setup_with_drift_mle
-
     with user_errors(), warnings.catch_warnings():
         warnings.simplefilter("ignore", UnobservableWarning)  # reported in the table
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
@@ -233,7 +240,7 @@ def compare_cmd(
                            f"--methods {methods} does not run")
         for m in names:  # before the drift's estimate and the runs, which build the model
             estimator_class(m).check_options(opts.get(m, {}))
-        setup = setup_with_drift_mle(drift, data, setup, parse_units(units))
+        setup = _with_drift_mle(drift, data, setup, parse_units(units))
         with progress_bar("comparing", as_json or quiet) as update:
             report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler,
                              progress=None if update is None else

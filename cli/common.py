@@ -379,6 +379,21 @@ def parse_list(text: str | None, option: str) -> tuple[str, ...] | None:
     return tuple(split_items(text, option))
 
 
+def parse_drift(text: str | None) -> float | None:
+    """The ``--drift`` option's number; None when not given or ``mle`` (then the caller
+    estimates it: :func:`calibration.discrepancy.drift_mle.setup_with_drift_mle`); anything
+    else that is not a positive number is a one-line error."""
+    if text is None or text == "mle":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        raise CliError(f"--drift {text}: expected 'mle' or a number") from None
+    if not v > 0:
+        raise CliError(f"--drift {text}: must be positive")
+    return v
+
+
 #: The most units one range of ``--units`` may name (``1-1000000000`` is a typing error, not
 #: a fleet, and would build a list of that length).
 MAX_RANGE_UNITS = 1_000_000

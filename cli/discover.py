@@ -16,6 +16,7 @@ from cli.common import (
     Quiet,
     console,
     echo_json,
+    parse_drift,
     parse_list,
     parse_model_error,
     parse_units,
@@ -25,16 +26,10 @@ from cli.common import (
 _METHODS = ("coarse", "mhe", "ukf", "ekf", "map_cycle")
 
 
-def _drift(text: str | None):
-    if text is None or text == "mle":
-        return "mle"
-    try:
-        v = float(text)
-    except ValueError:
-        raise CliError(f"--drift {text}: expected 'mle' or a number") from None
-    if not v > 0:
-        raise CliError(f"--drift {text}: must be positive")
-    return v
+def _drift_or_mle(text: str | None):
+    """``--drift``: a number, or ``"mle"`` (also the default)."""
+    v = parse_drift(text)
+    return "mle" if v is None else v
 
 
 def discover(
@@ -104,7 +99,7 @@ def discover(
         setup = CalibrationSetup(**kw)
         opts = DiscoverOptions(method=method, candidates=parse_list(candidates,
                                                                     "--candidates"),
-                               alpha=alpha, max_effects=max_effects, drift=_drift(drift),
+                               alpha=alpha, max_effects=max_effects, drift=_drift_or_mle(drift),
                                seed=seed)
         check_names(opts.candidates)
         unit_list = parse_units(units)

@@ -57,6 +57,23 @@ def test_engine_model_loads_the_model_on_first_use_only():
         engine_model.NoSuchName  # noqa: B018
 
 
+
+def test_the_discrepancy_loop_loads_on_first_use_only():
+    """``import calibration.discrepancy`` (as importing any of its modules does) leaves the
+    loop and scipy.stats unloaded until a name of the loop is asked for."""
+    code = ("import sys, json; import calibration.discrepancy as d; a = "
+            "'calibration.discrepancy.loop' in sys.modules; d.discover; "
+            "print(json.dumps([a, 'calibration.discrepancy.loop' in sys.modules]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=REPO)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == [False, True]
+    import calibration.discrepancy as d
+
+    assert set(d.__all__) <= set(dir(d)) and d.discover.__module__ == d.loop.__name__
+    with pytest.raises(AttributeError, match="no attribute 'NoSuchName'"):
+        d.NoSuchName  # noqa: B018
+
+
 # ---------------------------------------------------------------------------------------------
 # private names across the package boundary
 # ---------------------------------------------------------------------------------------------

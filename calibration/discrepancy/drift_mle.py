@@ -72,20 +72,6 @@ def drift_mle(problem: Problem, state: FitState) -> float:
     return float(np.exp(r.x))
 
 
-def drift_value(text) -> float | None:
-    """The ``--drift`` option's number (None when not given or ``mle``); anything else that
-    is not a positive number is an :class:`InputError`."""
-    if text is None or text == "mle":
-        return None
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise InputError(f"--drift {text}: expected 'mle' or a number") from None
-    if not v > 0:
-        raise InputError(f"--drift {text}: must be positive")
-    return v
-
-
 def estimate_drift(frames: list, setup: CalibrationSetup, model=None, source=None) -> float:
     """The maximum-likelihood ``q`` [per sqrt(hour)] of the units ``frames`` (one DataFrame
     each, hyprog names): the per-cycle fit of :mod:`.null_fit` (no candidate effect; warm
