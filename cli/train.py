@@ -148,6 +148,7 @@ def train(
                         "train_loss": m.history[m.best_epoch - 1]["train_loss"]}
                        for m in rul.members],
            "conformal": None if rul.conformal is None else rul.conformal.to_dict()}
+    warned = [*warned, *rul.still_improving()]
     if finish(rep, warned, as_json):
         return
     if quiet:  # --quiet: the result is in --out, nothing more is printed

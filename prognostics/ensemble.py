@@ -79,6 +79,19 @@ class RulModel:
     def window(self) -> int:
         return int(self.config.window)
 
+    def still_improving(self) -> list[str]:
+        """A line for each member whose training ran every epoch allowed with its best
+        epoch within the last ``patience`` epochs, so that early stopping never had its say:
+        the epoch cap, not the validation loss, ended it. Without validation nothing stops
+        early, and nothing is said."""
+        epochs, patience = int(self.config.epochs), int(self.config.patience)
+        return [f"seed {m.seed}: training used all {epochs} epochs before early stopping "
+                f"could end it (best epoch {m.best_epoch}, patience {patience}): a larger "
+                f"--epochs may give a better network"
+                for m in self.members
+                if len(m.history) >= epochs and m.history[-1]["val_loss"] is not None
+                and m.best_epoch > len(m.history) - patience]
+
     def networks(self, device: torch.device | str = "cpu") -> list[nn.Module]:
         nets = []
         for m in self.members:
