@@ -45,6 +45,11 @@ class Estimator(ABC):
     def __init__(self, model: SteadyStateModel | None = None):
         self.model: SteadyStateModel = model if model is not None else default_model()
 
+    #: Whether :meth:`estimate` warns (:class:`~calibration.UnobservableWarning`) of each
+    #: unit's unobservable parameters; a fleet driver that reports one summary for the fleet
+    #: (:func:`~calibration.calibrate_fleet.calibrate_fleet`) switches it off on its instance.
+    warn_unobservable: bool = True
+
     @classmethod
     def option_names(cls) -> set[str]:
         """The options ``__init__`` takes by name (besides the model); ``*args`` and

@@ -63,7 +63,8 @@ Before any work every unit to calibrate is read once and checked (:func:`series.
 columns, numbers, NaN, envelope, duplicated time stamps; :func:`unit_check.check_units`: the
 data against the model at theta = 0, units of measure), so bad input fails before anything
 is written. After estimating, :func:`unit_check.check_result` adds warnings (a channel the
-model cannot explain, theta_hat at a bound) to each unit's summary.
+model cannot explain, theta_hat at a bound) to each unit's summary; parameters the units
+could not observe are one warning for the fleet, not one per unit.
 
 The executor (serial, worker processes or Dask) is the runtime's one
 (:func:`engine_model.runtime.cluster.executor`), shared with ``hyprog simulate``. Worker
@@ -115,7 +116,9 @@ class FleetRun:
     """What :func:`calibrate_fleet` did. ``results``: unit -> :class:`CalibrationResult`
     (only when ``keep_results``); ``units``: unit -> summary dict (samples, seconds,
     non-converged, unobservable, warnings); ``skipped``: units already in ``out``;
-    ``sensors``: the measured channels used; ``warnings``: every unit's warnings;
+    ``sensors``: the measured channels used; ``warnings``: every unit's warnings, then one
+    line per set of parameters the units could not observe (also warned as
+    :class:`~calibration.UnobservableWarning`; :func:`unit_check.summarise_unobservable`);
     ``effects``: the effects in the model (canonical specifications)."""
 
     method: str
@@ -226,12 +229,12 @@ def run_task(task: dict) -> list[tuple]:
         frames = [by_unit[u] for u in task["units"]]
     model = worker_model(task.get("threads"), task.get("effects", ()))
     est = estimator_class(method)(model=model, **options)
-    with warnings.catch_warnings():
-        # each unit's record names its unobservable parameters; the driver warns once per
-        # group of units, in the caller's process (a worker's warning would reach stderr
-        # as Python prints it, and never the caller's report)
-        warnings.simplefilter("ignore", UnobservableWarning)
-        results = est.estimate_many(frames, setup, task.get("source"))
+    # each unit's record names its unobservable parameters and the driver warns once for the
+    # fleet, in the caller's process (a worker's warning would reach stderr as Python prints
+    # it, and never the caller's report); no warning filter is touched, since tasks may run
+    # in threads of the caller's process
+    est.warn_unobservable = False
+    results = est.estimate_many(frames, setup, task.get("source"))
     out = []
     for u, f, r in zip(task["units"], frames, results, strict=True):
         # the estimator checked the frame (prepare_unit); the warnings need only its label
@@ -602,8 +605,9 @@ def _calibrate(run, source, df_all, meta, calib_meta, todo, records, out, jobs, 
     # in unit order, not in the order the workers finished: the same run reports the same
     run.units = {u: run.units[u] for u in sorted(run.units)}
     run.warnings = [w for rec in run.units.values() for w in rec["warnings"]]
-    for line in summarise_unobservable(run.units, setup.observability_max_std):
-        warnings.warn(line, UnobservableWarning, stacklevel=2)
+    for line in summarise_unobservable(run.units, run.setup.observability_max_std):
+        run.warnings.append(line)
+        warnings.warn(line, UnobservableWarning, stacklevel=3)  # at calibrate_fleet's caller
     run.seconds = time.perf_counter() - t0
     return run
 

@@ -132,7 +132,8 @@ class KalmanEstimator(Estimator):
         setup = setup or CalibrationSetup()
         t0 = time.perf_counter()
         series = [prepare_unit(df, setup, source) for df in units]
-        obs = check_observability_many(self.model, series, setup)  # batched over units
+        obs = check_observability_many(self.model, series, setup,  # batched over units
+                                       warn=self.warn_unobservable)
         t_obs = time.perf_counter() - t0
         groups: dict = {}
         for i, (s, o) in enumerate(zip(series, obs, strict=True)):

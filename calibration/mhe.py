@@ -327,7 +327,8 @@ def _window_covariance(mode: str, info_k: np.ndarray, CtC: np.ndarray, d) -> np.
 
 
 def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: CalibrationSetup,
-                options: MHEOptions, per_cycle: bool = False, p=None) -> CalibrationResult:
+                options: MHEOptions, per_cycle: bool = False, p=None,
+                warn_unobservable: bool = True) -> CalibrationResult:
     """Windowed MAP / MHE (``per_cycle=False``) or batch MAP per flight cycle
     (``per_cycle=True``) of ``setup.params`` along one checked unit series: the starting
     unknowns and observability at the prior mean, then per segment a warm-started NLP, its
@@ -349,7 +350,7 @@ def run_windows(model: SymbolicSteadyStateModel, series: UnitSeries, setup: Cali
     r0 = model.solve_series(ser.w, np.tile(theta_base, (n, 1)), ser.p)
     x_prior = r0.x
     obs = check_observability(model, series, setup, x=x_prior if r0.converged.all() else None,
-                              p=ser.p)
+                              p=ser.p, warn=warn_unobservable)
     keep = [setup.params.index(q) for q in obs.observable]
     est = setup.param_index[keep]
     nt = len(est)
@@ -503,7 +504,8 @@ class MHEEstimator(Estimator):
                  source=None, p=None) -> CalibrationResult:
         setup = setup or CalibrationSetup()
         series = prepare_unit(df_unit, setup, source)
-        return run_windows(self.model, series, setup, self.options, self.per_cycle, p)
+        return run_windows(self.model, series, setup, self.options, self.per_cycle, p,
+                           self.warn_unobservable)
 
 
 class MAPCycleEstimator(MHEEstimator):

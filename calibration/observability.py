@@ -121,19 +121,21 @@ def sample_rows(n: int, setup: CalibrationSetup) -> np.ndarray:
 
 
 def check_observability(model: SteadyStateModel, series: UnitSeries, setup: CalibrationSetup,
-                        x=None, p=None, apply_policy: bool = True) -> Observability:
+                        x=None, p=None, apply_policy: bool = True,
+                        warn: bool = True) -> Observability:
     """Fisher information of ``setup.sensors`` about ``setup.params`` over the unit at the
     prior mean, its rank, and which parameters are unobservable. ``x``: the unit's unknowns at
     the prior mean when known (else solved along the series); ``p``: its effect parameters
     ((n_p,) or (N, n_p)). With ``apply_policy``, ``setup.unobservable == "raise"`` raises
-    :class:`UnobservableError` and ``"exclude"`` warns (:class:`UnobservableWarning`)."""
-    return check_observability_many(model, [series], setup, [x], [p], apply_policy)[0]
+    :class:`UnobservableError` and ``"exclude"`` warns (:class:`UnobservableWarning`; not
+    with ``warn=False``, for a caller that reports the fleet's summary instead)."""
+    return check_observability_many(model, [series], setup, [x], [p], apply_policy, warn)[0]
 
 
 def check_observability_many(model: SteadyStateModel, series: Sequence[UnitSeries],
                              setup: CalibrationSetup, xs: Sequence | None = None,
-                             ps: Sequence | None = None,
-                             apply_policy: bool = True) -> list[Observability]:
+                             ps: Sequence | None = None, apply_policy: bool = True,
+                             warn: bool = True) -> list[Observability]:
     """:func:`check_observability` of every unit of ``series`` (``xs``, ``ps``: each unit's
     ``x`` and ``p``, default None), in batches of whole units of up to
     :data:`OBSERVABILITY_BATCH_POINTS` sample points.
@@ -159,7 +161,7 @@ def check_observability_many(model: SteadyStateModel, series: Sequence[UnitSerie
             infos = _fisher_batch(model, [series[j] for j in batch], setup,
                                   [rows[j] for j in batch], [xs[j] for j in batch],
                                   [ps[j] for j in batch])
-            out += [_assess(info, series[j], setup, apply_policy)
+            out += [_assess(info, series[j], setup, apply_policy, warn)
                     for j, info in zip(batch, infos, strict=True)]
             batch, points = [], 0
         if i < n_units:
@@ -216,7 +218,7 @@ def _fisher_batch(model, series, setup, rows, xs, ps) -> list:
 
 
 def _assess(info, series: UnitSeries, setup: CalibrationSetup,
-            apply_policy: bool) -> Observability:
+            apply_policy: bool, warn: bool = True) -> Observability:
     """The rank test of one unit's Fisher information and the policy (module docstring)."""
     if isinstance(info, Exception):
         raise info
@@ -237,6 +239,7 @@ def _assess(info, series: UnitSeries, setup: CalibrationSetup,
                f"{setup.observability_max_std:g} does)")
         if setup.unobservable == "raise" or not obs.observable:
             raise UnobservableError(msg)
-        warnings.warn(msg + "; held at the prior mean, reported as NaN",
-                      UnobservableWarning, stacklevel=4)
+        if warn:
+            warnings.warn(msg + "; held at the prior mean, reported as NaN",
+                          UnobservableWarning, stacklevel=4)
     return obs

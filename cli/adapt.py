@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from cli.common import (
+    UNIT_LIST,
     CliError,
     Overwrite,
     Quiet,
@@ -34,8 +35,8 @@ def adapt(
         "duct_loss, cooling_flow, map_pressure_ratio when named).")] = None,
     early_cycles: Annotated[int, typer.Option(
         "--early-cycles", help="Cycles of early life used (cycle <= this).", min=1)] = 20,
-    units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
-                                              "or ranges, e.g. 1-20,25 (default: all).")] = None,
+    units: Annotated[str | None, typer.Option("--units", help="Units to use "
+                                              f"{UNIT_LIST} (default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the held-out engine folds.", min=0)]
     = 0,
     model_error: Annotated[float | None, typer.Option(

@@ -14,6 +14,7 @@ from typer.core import TyperGroup
 
 from cli.common import (
     APP_SETTINGS,
+    UNIT_LIST,
     CliError,
     ModelError,
     Noise,
@@ -102,7 +103,7 @@ PriorStd = Annotated[float | None, typer.Option(
 DriftPer = Annotated[str | None, typer.Option(
     "--drift-per", help="cycle, time or auto (default: auto: cycle when the data have cycles).")]
 Units = Annotated[str | None, typer.Option(
-    "--units", help="Comma-separated units or ranges, e.g. 1-20,25 (default: all).")]
+    "--units", help=f"Units to calibrate {UNIT_LIST} (default: all).")]
 Jobs = Annotated[int, typer.Option("--jobs", help="Worker processes (default: 1).")]
 Scheduler = Annotated[str | None, typer.Option(
     "--scheduler", help="Dask scheduler address (tcp://host:port), or 'local' for a local "
@@ -172,8 +173,10 @@ def run(
                                   keep_results=False, progress=update,
                                   effects=adapted.effects if adapted else (),
                                   model_source=adapted.provenance() if adapted else None)
-    warned = sorted({str(w.message) for w in caught
-                     if issubclass(w.category, UnobservableWarning)}) + list(res.warnings)
+    # the fleet's summary of unobservable parameters is both warned and in res.warnings
+    warned = list(dict.fromkeys([*sorted({str(w.message) for w in caught
+                                          if issubclass(w.category, UnobservableWarning)}),
+                                 *res.warnings]))
     nonconverged = sum(v["n_nonconverged"] for v in res.units.values())
     absent = [c for c in XS_NAMES if c not in res.sensors]
     rep = {"out": str(out), "method": method, "params": list(setup.params),
@@ -231,15 +234,16 @@ def compare_cmd(
         warnings.simplefilter("ignore", UnobservableWarning)  # reported in the table
         setup = _setup(params, sensors, drift, noise_scale, prior_std, drift_per)
         names = parse_list(methods, "--methods")
+        classes = {m: estimator_class(m) for m in names}  # an unknown method: named first
         mhe = _given(window=window, stride=stride, mode=mode, hessian=hessian)
         opts = {"mhe": mhe, "map_cycle": _given(hessian=hessian)}
         unused = [k for k in mhe if not any(k in opts.get(m, {}) for m in names)]
         if unused:
-            raise CliError(f"{', '.join('--' + k for k in unused)}: options of the mhe method"
-                           f"{' (and map_cycle)' if unused == ['hessian'] else ''}, which "
-                           f"--methods {methods} does not run")
-        for m in names:  # before the drift's estimate and the runs, which build the model
-            estimator_class(m).check_options(opts.get(m, {}))
+            raise CliError(f"{', '.join('--' + k for k in unused)}: option(s) of the mhe "
+                           f"method{' (--hessian: and map_cycle)' if 'hessian' in unused else ''}"
+                           f", which --methods {methods} does not run")
+        for m, cls in classes.items():  # before the drift's estimate and the runs
+            cls.check_options(opts.get(m, {}))
         setup = _with_drift_mle(drift, data, setup, parse_units(units))
         with progress_bar("comparing", as_json or quiet) as update:
             report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler,

@@ -380,19 +380,24 @@ def parse_list(text: str | None, option: str) -> tuple[str, ...] | None:
 
 
 def parse_drift(text: str | None) -> float | None:
-    """The ``--drift`` option's number; None when not given or ``mle`` (then the caller
-    estimates it: :func:`calibration.discrepancy.drift_mle.setup_with_drift_mle`); anything
-    else that is not a positive number is a one-line error."""
+    """The ``--drift`` option's number; None when not given or ``mle`` (what that means is
+    the command's: ``calibrate`` keeps the setup's default unless ``mle``, where
+    :func:`calibration.discrepancy.drift_mle.setup_with_drift_mle` estimates it; ``discover``
+    estimates it in both cases); anything else that is not a positive, finite number is a
+    one-line error."""
     if text is None or text == "mle":
         return None
     try:
         v = float(text)
     except ValueError:
         raise CliError(f"--drift {text}: expected 'mle' or a number") from None
-    if not v > 0:
-        raise CliError(f"--drift {text}: must be positive")
+    if not 0 < v < float("inf"):
+        raise CliError(f"--drift {text}: must be positive and finite")
     return v
 
+
+#: How every unit-list option's help says what it takes (:func:`parse_units`).
+UNIT_LIST = "(comma-separated; ranges: 1-20,25)"
 
 #: The most units one range of ``--units`` may name (``1-1000000000`` is a typing error, not
 #: a fleet, and would build a list of that length).

@@ -9,6 +9,7 @@ from typing import Annotated, Literal
 import typer
 
 from cli.common import (
+    UNIT_LIST,
     CliError,
     ModelError,
     Noise,
@@ -55,8 +56,8 @@ def discover(
     drift: Annotated[str | None, typer.Option(
         "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle' (default: "
         "mle).")] = None,
-    units: Annotated[str | None, typer.Option("--units", help="Comma-separated units "
-                                              "or ranges, e.g. 1-20,25 (default: all).")] = None,
+    units: Annotated[str | None, typer.Option("--units", help="Units to use "
+                                              f"{UNIT_LIST} (default: all).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the family-wise sampling.")]
     = 0,
     model_effects: Annotated[Path | None, typer.Option(

@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 import typer
 
 from cli.common import (
+    UNIT_LIST,
     CliError,
     Quiet,
     caught_warnings,
@@ -34,7 +35,8 @@ def evaluate(
         metavar="FEATURES", help="Feature table with the model's inputs "
                                              "and RUL.")],
     units: Annotated[str | None, typer.Option(
-        "--units", help="Units to evaluate (default: the metadata's test_units).")] = None,
+        "--units", help=f"Units to evaluate {UNIT_LIST} (default: the metadata's "
+        "test_units).")] = None,
     device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
         "--device", help="Where the networks run.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON only.")] = False,

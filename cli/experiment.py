@@ -9,6 +9,7 @@ import typer
 
 from cli.common import (
     APP_SETTINGS,
+    UNIT_LIST,
     CliError,
     PlainUsageCommand,
     Quiet,
@@ -54,7 +55,7 @@ def paper(
         "--ablations", help="small, features, calibration, conformal (comma-separated), all "
         "or none.")] = "all",
     small_units: Annotated[str, typer.Option(
-        "--small-units", help="Training units of ablation I.")] = "16,18,20",
+        "--small-units", help=f"Training units of ablation I {UNIT_LIST}.")] = "16,18,20",
     epochs: Annotated[int | None, typer.Option(
         "--epochs", help="Maximum epochs of every run (default: 60 FNN, 30 CNN).")] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Conformal miscoverage.")] = 0.1,

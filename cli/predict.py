@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 import typer
 
 from cli.common import (
+    UNIT_LIST,
     Overwrite,
     Quiet,
     caught_warnings,
@@ -33,8 +34,8 @@ def predict(
     out: Annotated[Path, typer.Option(
         "--out", help="Per-sample predictions (.csv, else parquet); the per-cycle table goes "
         "to <stem>.per_cycle<suffix> beside it.")],
-    units: Annotated[str | None, typer.Option("--units", help="Units to predict (default: all).")
-                     ] = None,
+    units: Annotated[str | None, typer.Option(
+        "--units", help=f"Units to predict {UNIT_LIST} (default: all).")] = None,
     device: Annotated[Literal["auto", "cpu", "cuda"], typer.Option(
         "--device", help="Where the networks run.")] = "cpu",
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,

@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 import typer
 
 from cli.common import (
+    UNIT_LIST,
     CliError,
     Overwrite,
     Quiet,
@@ -29,8 +30,7 @@ def simulate(
         "--preset", help="Fleet preset: ds02, ds02-study (a drawn ds02-like fleet of 30 "
         "units) or tiny.")] = "tiny",
     units: Annotated[str | None, typer.Option(
-        "--units", help="Unit numbers of the preset, comma-separated or ranges, e.g. 1-3,6 "
-        "(default: all).")] = None,
+        "--units", help=f"Unit numbers of the preset {UNIT_LIST} (default: all).")] = None,
     rate: Annotated[float | None, typer.Option(
         "--rate-hz", "--rate", help="Sample rate [Hz]: 1 (native) or 1/k, e.g. 0.1 as in the "
         "paper (the pipeline's [simulate] rate_hz).")] = None,

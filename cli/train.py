@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 import typer
 
 from cli.common import (
+    UNIT_LIST,
     CliError,
     Overwrite,
     Quiet,
@@ -45,7 +46,8 @@ def train(
     inputs: Annotated[str, typer.Option("--inputs", help=INPUTS_HELP)] = "hybrid",
     units: Annotated[str | None, typer.Option(
         "--units",
-        help="Development units to train on (default: the metadata's dev_units).")] = None,
+        help=f"Development units to train on {UNIT_LIST} (default: the metadata's "
+        "dev_units).")] = None,
     window: Annotated[int | None, typer.Option(
         "--window", help="Window length (default 50 CNN, 30 DCNN, 20 flights for tcn and "
         "trend); the FNN takes one time step.")] = None,
@@ -80,12 +82,12 @@ def train(
         "--validation", help="auto (10 % of the training units, whole, when there are at "
         "least two; else 10 % of the flights), flights or units.")] = "auto",
     val_units: Annotated[str | None, typer.Option(
-        "--val-units", help="Validate on these whole units, or 'seed': 10 % of the training "
-        "units drawn by the seed (what --validation auto does).")
+        "--val-units", help=f"Validate on these whole units {UNIT_LIST}, or 'seed': 10 % of "
+        "the training units drawn by the seed (what --validation auto does).")
     ] = None,
     conformal_units: Annotated[str | None, typer.Option(
-        "--conformal-units", help="Development units held out to calibrate a conformal "
-        "interval.")] = None,
+        "--conformal-units", help=f"Development units held out to calibrate a conformal "
+        f"interval {UNIT_LIST}.")] = None,
     alpha: Annotated[float | None, typer.Option(
         "--alpha", help="Miscoverage of the conformal interval (default 0.1: 90 %); needs "
         "--conformal-units.")] = None,

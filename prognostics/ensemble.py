@@ -82,8 +82,9 @@ class RulModel:
     def still_improving(self) -> list[str]:
         """A line for each member whose training ran every epoch allowed while its
         validation loss was still improving: its best epoch within the last half
-        ``patience`` epochs (where the plateau schedule has not yet lowered the learning rate
-        since), so that the epoch cap, not early stopping, ended it. A best epoch earlier
+        ``patience`` epochs (with the plateau schedule: the learning rate not yet lowered
+        since; with a constant one the same count), so that the epoch cap, not early
+        stopping, ended it. A best epoch earlier
         than that, with the loss flat since, is a converged run that early stopping was
         about to end: nothing is said (on FD003 with the defaults 88 of 225 runs reached the
         cap of 250, 16 with their best epoch in the last 25). Without validation nothing

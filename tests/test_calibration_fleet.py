@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from calibration import CalibrationSetup, get_estimator
+from calibration import CalibrationSetup, UnobservableWarning, get_estimator
 from calibration.calibrate_fleet import (
     calibrate_fleet,
     features_of,
@@ -247,7 +247,7 @@ def test_cli_calibrate_writes_features_and_resumes(small, tmp_path):
     assert r.exit_code == 0 and "wrote" in r.output
 
 
-def test_cli_calibrate_sensor_subset_reports_unobservable(small, tmp_path):
+def test_cli_calibrate_sensor_subset_reports_unobservable(small, tmp_path, capfd):
     path, _ = small
     r = runner.invoke(app, ["calibrate", str(path), "--method", "ekf", "--units", "1",
                             "--sensors", "P2,P15", "--out", str(tmp_path / "f"), "--json"])
@@ -269,7 +269,8 @@ def test_cli_calibrate_sensor_subset_reports_unobservable(small, tmp_path):
                              str(tmp_path / "f2"), "--json"])
     assert r2.exit_code == 0, r2.output
     rep2 = json.loads(r2.stdout)
-    assert "UnobservableWarning" not in r2.stderr
+    # the workers write to the process's file descriptor 2, which only capfd sees
+    assert "UnobservableWarning" not in capfd.readouterr().err
     assert [w for w in rep2["warnings"] if "cannot be observed" in w] == [
         w.replace("1 of 1 units (unit 1:", "2 of 2 units (units 1, 2:")
         for w in rep["warnings"] if "cannot be observed" in w]
@@ -349,6 +350,22 @@ def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
         f"HPT_eff_mod_hat is at its bound -0.15 in 1 of 9 units (unit 8; 1 of their 150 "
         f"samples): {AT_BOUND}"]
     assert summarise_bound_hits({1: {"samples": 5, "at_bound": []}}) == []
+
+
+def test_a_library_caller_is_warned_once_for_the_fleet(small):
+    """calibrate_fleet: one UnobservableWarning for the units that share the unobservable
+    parameters, attributed to the caller's line, and the same line in the run's warnings."""
+    import warnings
+
+    path, _ = small
+    setup = CalibrationSetup(sensors=("P2", "P15"), drift=0.01)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = calibrate_fleet(path, "ekf", setup, units=[1, 2])
+    said = [w for w in caught if issubclass(w.category, UnobservableWarning)]
+    assert len(said) == 1 and "in 2 of 2 units (units 1, 2:" in str(said[0].message)
+    assert said[0].filename == __file__
+    assert [w for w in run.warnings if "cannot be observed" in w] == [str(said[0].message)]
 
 
 def test_unobservable_parameters_are_summarised_over_the_fleet():

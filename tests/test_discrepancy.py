@@ -261,7 +261,8 @@ def test_drift_mle_for_the_estimators(clean_dir, model):
     assert setup_with_drift_mle("0.01", clean_dir, SETUP) is SETUP
 
 
-@pytest.mark.parametrize("drift, msg", [("abc", "--drift abc"), ("-1", "must be positive")])
+@pytest.mark.parametrize("drift, msg", [("abc", "--drift abc"), ("-1", "must be positive"),
+                                        ("inf", "--drift inf: must be positive and finite")])
 def test_cli_calibrate_bad_drift_is_one_line(tmp_path, drift, msg):
     r = CliRunner().invoke(app, ["calibrate", str(tmp_path / "none"), "--out",
                                  str(tmp_path / "o"), "--drift", drift])

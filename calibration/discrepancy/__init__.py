@@ -108,7 +108,8 @@ from importlib import import_module
 
 # name -> submodule that defines it, imported when the name is first asked for (PEP 562, as
 # in ``engine_model``): the loop imports scipy.stats and the identifiability machinery (0.7 s),
-# which ``calibrate`` does not need when it reads ``--drift`` through ``drift_mle``
+# which importing another module of the package (``drift_mle`` for ``calibrate --drift mle``,
+# ``candidates``) does not need
 _LAZY = {"VERDICTS": "loop", "DiscoverOptions": "loop", "Discovery": "loop",
          "discover": "loop"}
 

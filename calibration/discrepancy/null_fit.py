@@ -453,10 +453,12 @@ def coarse_start(problem: Problem, phi, every: int = COARSE_EVERY) -> list:
 
 def warm_start(problem: Problem, frames: list[pd.DataFrame], method: str, model) -> list:
     """Theta per cycle from an existing estimator (public API): the cycle means of its
-    theta_hat (unobservable parameters, NaN there, at the prior mean)."""
+    theta_hat (unobservable parameters, NaN there, at the prior mean; the estimator's
+    per-unit warning about them is not the loop's to give: a start, not a result)."""
     from calibration import get_estimator
 
     est = get_estimator(method, model=model)
+    est.warn_unobservable = False
     results = est.estimate_many(frames, problem.setup)
     Theta = []
     for u, r in zip(problem.units, results, strict=True):

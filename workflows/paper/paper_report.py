@@ -448,7 +448,8 @@ def _own_figures(figures: Path) -> list[Path]:
     """The report's own PNGs in ``figures`` (see :data:`OWN_FIGURES`), sorted."""
     if not figures.is_dir():
         return []
-    return sorted({p for pattern in OWN_FIGURES for p in figures.glob(pattern)})
+    return sorted({p for pattern in OWN_FIGURES for p in figures.glob(pattern)
+                   if p.is_symlink() or p.is_file()})  # a folder of that name is not one
 
 
 def _remove_own_figures(figures: Path) -> None:
