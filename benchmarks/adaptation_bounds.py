@@ -86,7 +86,7 @@ def main() -> None:
     record, _, data = recorded(a)
     info = record.get("data", {})
     groups = build_groups(data.channels)
-    model = CandidateModel(groups)
+    model = CandidateModel(groups, sens_outputs=data.channels)
     chosen_all = list(record["selection"]["chosen"])
     n_levels = sum(c.registry_name == LEVEL_GROUP for c in groups if c.name in chosen_all)
     fit = fit_fleet(model, data, Shared.none())

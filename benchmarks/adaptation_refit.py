@@ -58,7 +58,7 @@ def main() -> None:
     for c in groups:
         for j, q in enumerate(c.params):
             phi[c.index[j]] = value.get((c.name, q), 0.0)
-    model = CandidateModel(groups)
+    model = CandidateModel(groups, sens_outputs=data.channels)
     shared = shared_of(groups, chosen)
     t0 = time.perf_counter()
     full = fit_fleet(model, data, shared, phi)

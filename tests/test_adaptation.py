@@ -77,7 +77,7 @@ MODULE_CANDIDATES = (*CANDIDATES, "map_slope", "duct_loss", "cooling_flow")
 
 @pytest.fixture(scope="module")
 def candidate_model():
-    return CandidateModel(build_groups(CHANNELS, MODULE_CANDIDATES))
+    return CandidateModel(build_groups(CHANNELS, MODULE_CANDIDATES), sens_outputs=CHANNELS)
 
 
 @pytest.fixture(scope="module")

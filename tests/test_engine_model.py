@@ -759,3 +759,36 @@ def test_newton_with_carried_jacobians_reaches_the_same_roots(model):
     # the conditioning of J, a few units (a map coordinate near 0 differs by 2.5e-10)
     np.testing.assert_allclose(carried.x, fresh.x, rtol=1e-8, atol=1e-9)
     assert np.all(carried.residual_norm < 1e-10)
+
+
+def test_a_model_for_some_outputs_sensitivities_gives_the_same_numbers(model):
+    """``EngineModel(sens_outputs=...)`` (the adaptation's model: its fitted channels only)
+    gives those rows of every output's sensitivities, in the order asked, NaN in the other
+    rows of ``sensitivities_at``, and refuses an output it was not built for. The same
+    expressions evaluated in another order: equal to 3e-13 relative, not bit for bit.
+    Uncompiled here (CasADi's virtual machine, no compile)."""
+    from engine_model.validation import InputError
+
+    some = EngineModel(design=model.design, compiled=False, sens_outputs=("T50", "Nc", "P15"))
+    assert some.sens_outputs == ("Nc", "T50", "P15")  # in OUTPUT_NAMES order
+    full = EngineModel(design=model.design, compiled=False)
+    w = w_rows([(0.0, 0.0, 100.0), (35000.0, 0.8, 95.0)])
+    th = np.array([np.zeros(N_TH), theta_vec(HPT_eff_mod=-0.02)])
+    res = full.solve(w, th)
+    a = full.sensitivities_of(res.x, w, th, None, ("P15", "T50"))
+    b = some.sensitivities_of(res.x, w, th, None, ("P15", "T50"))
+    for u, v in ((a.theta, b.theta), (a.w, b.w), (a.p, b.p)):
+        assert u.shape == v.shape
+        np.testing.assert_allclose(v, u, rtol=1e-11, atol=0.0)
+    at = some.sensitivities_at(res.x, w, th)
+    rows = [OUTPUT_NAMES.index(c) for c in ("Nc", "T50", "P15")]
+    whole = full.sensitivities_at(res.x, w, th)
+    np.testing.assert_allclose(at.theta[:, rows], whole.theta[:, rows], rtol=1e-11, atol=0.0)
+    others = [i for i in range(len(OUTPUT_NAMES)) if i not in rows]
+    assert np.isnan(at.theta[:, others]).all() and np.isnan(at.w[:, others]).all()
+    with pytest.raises(InputError, match="no sensitivities of T30"):
+        some.sensitivities_of(res.x, w, th, None, ("T30",))
+    with pytest.raises(InputError, match="sens_outputs: T3O not outputs"):
+        EngineModel(design=model.design, compiled=False, sens_outputs=("T3O",))
+    with pytest.raises(InputError, match="distinct"):
+        EngineModel(design=model.design, compiled=False, sens_outputs=("T50", "T50"))

@@ -165,7 +165,7 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     check_fleet(data, source, engine_folds)
     groups = build_groups(data.channels, candidates)
     if model is None:
-        model = CandidateModel(groups)
+        model = CandidateModel(groups, sens_outputs=data.channels)
     else:
         groups = prebuilt_groups(model, [c.name for c in groups])
     sel = select(model, data, groups, log, judge=judge)
@@ -256,7 +256,7 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
                 raise InputError(f"the adapted model: no value of {c.name}.{q}, a parameter "
                                  "of a chosen candidate")
             phi[c.index[j]] = value.get((c.name, q), 0.0)
-    model = model or CandidateModel(groups, design=design)
+    model = model or CandidateModel(groups, design=design, sens_outputs=data.channels)
     shared = shared_of(groups, chosen)
     fit = fit_fleet(model, data, shared, phi)
     return fit, condition_out(model, data, shared, fit)

@@ -14,7 +14,7 @@ Two kinds, one interface (:class:`CandidateModel`):
   ``phi = 0`` it is the base model, and with the accepted effects' values in ``p`` it is the
   current model: every solve and every exact sensitivity ``dy/dtheta``, ``dy/dp`` of the loop
   goes through this one variant
-  (:meth:`engine_model.solver.interface.SteadyStateModel.sensitivities_at`).
+  (:meth:`engine_model.solver.model.EngineModel.sensitivities_of`: of the channels read).
 - *Sensor* candidates do not change the steady state: a reading ``y_c`` becomes
   ``reading(F_c, phi)``. Their derivatives are those of the effect's own
   :meth:`~engine_model.physics.effects.Effect.apply` on the hook ``sensor:<channel>``,
@@ -247,7 +247,7 @@ class CandidateModel:
     in candidate order after the steady solve."""
 
     def __init__(self, candidates: list[Candidate], design=None, compiled: bool = True,
-                 model=None, fixed=()):
+                 model=None, fixed=(), sens_outputs=None):
         from engine_model import EngineModel
 
         self.candidates = candidates
@@ -261,8 +261,11 @@ class CandidateModel:
             raise InputError("CandidateModel: a given model serves no steady candidate")
         # no steady candidate: the given (base) model as it is, no variant to build
         effects = [*self.fixed, *(c.effect for c in steady)]
+        # ``sens_outputs``: the only channels ever read with derivatives (an adaptation's
+        # fitted channels): the model computes no other output's sensitivities, which are
+        # most of a fit's time (two thirds of an adaptation's)
         self.model = model if model is not None else EngineModel(
-            design=design, effects=effects, compiled=compiled)
+            design=design, effects=effects, compiled=compiled, sens_outputs=sens_outputs)
         self._set = EffectSet(effects)
         names = list(self._set.param_names)
         # global phi index -> column of the steady model's p
@@ -309,12 +312,12 @@ class CandidateModel:
         y = F.copy()
         dth = dph = None
         if derivatives:
-            s = m.sensitivities_at(res.x, w, theta_full, P)
+            s = m.sensitivities_of(res.x, w, theta_full, P, tuple(sensors))
             est_idx = np.arange(len(THETA_NAMES)) if est_idx is None else est_idx
-            dth = s.theta[:, cols][:, :, est_idx]
+            dth = s.theta[:, :, est_idx]
             dph = np.zeros((n, len(sensors), self.n_phi))
             for c, pc in zip(self.steady, self._steady_cols, strict=True):
-                dph[:, :, c.index] = s.p[:, cols][:, :, pc]
+                dph[:, :, c.index] = s.p[:, :, pc]
         # sensor effects, in candidate order: y_c <- reading(y_c, phi_j), one mapped call
         if self.sensor:
             reader = self._reader(tuple(sensors))

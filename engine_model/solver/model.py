@@ -85,6 +85,21 @@ class ResidualSystem:
     guess: object  # callable (w (N,4)) -> x0 (N,8)
 
 
+def _sens_outputs(outputs) -> tuple[str, ...]:
+    """``EngineModel(sens_outputs=...)`` checked, in :data:`channels.OUTPUT_NAMES` order (one
+    set of outputs is one compiled library, whatever order it was given in)."""
+    if outputs is None:
+        return OUTPUT_NAMES
+    outputs = (outputs,) if isinstance(outputs, str) else tuple(outputs)
+    unknown = [c for c in outputs if c not in OUTPUT_NAMES]
+    if unknown:
+        raise InputError(f"sens_outputs: {', '.join(unknown)} not outputs of the model")
+    if not outputs or len(set(outputs)) != len(outputs):
+        raise InputError(f"sens_outputs {', '.join(outputs) or '(none)'}: expected distinct "
+                         "outputs, at least one")
+    return tuple(c for c in OUTPUT_NAMES if c in outputs)
+
+
 class _LazyFunctions(dict):
     """Functions by name; a missing one among the derived functions (``resjac``, ``sens``,
     ``dxdth``) is taken from ``derive(key)`` (which builds it, and what is built with it,
@@ -123,10 +138,11 @@ class EngineModel:
     output_names = OUTPUT_NAMES
 
     def __init__(self, design: EngineDesign | None = None, effects=(), compiled: bool = True,
-                 n_threads: int | None = None):
+                 n_threads: int | None = None, sens_outputs=None):
         self.design = design or design_engine()
         self.effects = EffectSet(effects)
         self.compiled = compiled
+        self.sens_outputs = _sens_outputs(sens_outputs)
         self.n_threads = max(1, n_threads or os.cpu_count() or 1)
         self.param_names = self.effects.param_names
         self.p_default = self.effects.defaults
@@ -173,6 +189,9 @@ class EngineModel:
                 tag = "v" + hashlib.sha256(tag.encode()).hexdigest()[:16]
             name = "hyprog_engine" + (("_" + tag) if tag else "")
             key = self._library_key(f_out)
+            # the sensitivities of some outputs only: another cold library, the same hot one
+            cold_key = key if self.sens_outputs == OUTPUT_NAMES else hashlib.sha256(
+                "\0".join((key, *self.sens_outputs)).encode()).hexdigest()
             sym = self._symbolic
             # the two libraries' compilers run side by side (compile_keyed_all)
             hot, cold = compile_keyed_all([
@@ -182,7 +201,7 @@ class EngineModel:
                              extra_flags=("-DRES_FN=hyprog_residual",
                                           "-DRESJAC_FN=hyprog_resjac"),
                              optional_flags=("-fopenmp",)),
-                KeyedLibrary(name + "_cold", key, ("hyprog_outputs", "hyprog_sensitivities"),
+                KeyedLibrary(name + "_cold", cold_key, ("hyprog_outputs", "hyprog_sensitivities"),
                              lambda: [sym["outputs"], sym["sens"]], opt="-O1")])
             self._newton_c = CompiledNewton(hot["__library__"])
             fns = _LazyFunctions(self._derived, residual=hot["hyprog_residual"],
@@ -223,10 +242,13 @@ class EngineModel:
         if key == "resjac":
             derived["resjac"] = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
             return derived
-        # exact sensitivities by the implicit function theorem (module docstring)
+        # exact sensitivities by the implicit function theorem (module docstring), of the
+        # outputs ``sens_outputs`` (all by default)
         n_th, n_w = th.numel(), w.numel()
         Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w),
                                         ca.jacobian(res, p)))
+        if self.sens_outputs != OUTPUT_NAMES:
+            y = y[[OUTPUT_NAMES.index(c) for c in self.sens_outputs]]
         dy_dx = ca.jacobian(y, x)
         dth = ca.jacobian(y, th) - dy_dx @ Jinv_r[:, :n_th]
         dw = ca.jacobian(y, w) - dy_dx @ Jinv_r[:, n_th:n_th + n_w]
@@ -489,15 +511,40 @@ class EngineModel:
 
     def sensitivities_at(self, x, w, theta=None, p=None) -> Sensitivities:
         """Exact ``dy/dtheta`` (N, n_out, 10), ``dy/dw`` (N, n_out, 4) and ``dy/dp`` (N, n_out,
-        n_p) at converged unknowns ``x`` (rows in :data:`channels.OUTPUT_NAMES` order)."""
+        n_p) at converged unknowns ``x`` (rows in :data:`channels.OUTPUT_NAMES` order; NaN in
+        the rows of outputs outside :attr:`sens_outputs`)."""
+        s = self.sensitivities_of(x, w, theta, p, self.sens_outputs)
+        if self.sens_outputs == OUTPUT_NAMES:
+            return s
+        rows = [OUTPUT_NAMES.index(c) for c in self.sens_outputs]
+
+        def full(a):
+            out = np.full((a.shape[0], len(OUTPUT_NAMES), a.shape[2]), np.nan)
+            out[:, rows] = a
+            return out
+
+        return Sensitivities(theta=full(s.theta), w=full(s.w), p=full(s.p))
+
+    def sensitivities_of(self, x, w, theta, p, outputs) -> Sensitivities:
+        """:meth:`sensitivities_at` of the outputs ``outputs`` only, rows in that order. A
+        model built with ``sens_outputs`` computes no others (the adaptation's model: its
+        fitted channels, whose sensitivities take 57 % of the instructions of every
+        output's for seven of them); asking for another output is an error."""
+        missing = [c for c in outputs if c not in self.sens_outputs]
+        if missing:
+            raise InputError(f"the model computes no sensitivities of {', '.join(missing)} "
+                             f"(built for {', '.join(self.sens_outputs)})")
         cols = self._columns(x, w, theta, p)
-        n, n_out, n_p = cols[0].shape[1], len(OUTPUT_NAMES), len(self.param_names)
+        n, n_out, n_p = cols[0].shape[1], len(self.sens_outputs), len(self.param_names)
         outs = self._eval("sens", *cols)
+        rows = [self.sens_outputs.index(c) for c in outputs]
+        every = rows == list(range(n_out))
 
         def per_point(a, k):
-            return a.T.reshape(n, k, n_out).transpose(0, 2, 1)
+            a = a.T.reshape(n, k, n_out).transpose(0, 2, 1)
+            return a if every else a[:, rows]
 
-        dp = per_point(outs[2], n_p) if n_p else np.zeros((n, n_out, 0))
+        dp = per_point(outs[2], n_p) if n_p else np.zeros((n, len(rows), 0))
         return Sensitivities(theta=per_point(outs[0], N_THETA), w=per_point(outs[1], N_W), p=dp)
 
     # ------------------------------------------------------------------ DataFrame API
