@@ -6,9 +6,8 @@ model and the design (which import CasADi) load on first use through a module
 ``import engine_model.datasets`` (reading data) never imports CasADi.
 """
 
-from importlib import import_module
-
 from .channels import OUTPUT_NAMES, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from .lazy_names import lazy_names
 from .validation import ENVELOPE, InputError
 
 # name -> submodule that defines it, imported when the name is first asked for
@@ -27,14 +26,4 @@ __all__ = [
     "XS_NAMES", "XV_NAMES",
 ]
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value  # later look-ups skip this function
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)

@@ -104,25 +104,15 @@ Not done: series effects (spool and thermal dynamics) have no steady parameter a
 the unknown-effect tests (the basis holds the rates of the operating variables).
 """
 
-from importlib import import_module
+from engine_model.lazy_names import lazy_names
 
-# name -> submodule that defines it, imported when the name is first asked for (PEP 562, as
-# in ``engine_model``): the loop imports scipy.stats and the identifiability machinery (0.7 s),
-# which importing another module of the package (``drift_mle`` for ``calibrate --drift mle``,
-# ``candidates``) does not need
+# name -> submodule that defines it, imported when the name is first asked for (PEP 562,
+# :mod:`engine_model.lazy_names`): the loop imports scipy.stats and the identifiability
+# machinery (0.7 s), which importing another module of the package (``drift_mle`` for
+# ``calibrate --drift mle``, ``candidates``) does not need
 _LAZY = {"VERDICTS": "loop", "DiscoverOptions": "loop", "Discovery": "loop",
          "discover": "loop"}
 
 __all__ = ["VERDICTS", "DiscoverOptions", "Discovery", "discover"]
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value  # later look-ups skip this function
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
