@@ -1,5 +1,6 @@
-"""Names a package exports but imports only when first asked for (PEP 562), written once for
-every package that does it (``engine_model``, ``prognostics``, ``calibration.discrepancy``):
+"""Names a package exports but imports only when first asked for (PEP 562), for the packages
+that do it (``engine_model``, ``calibration.discrepancy``; ``prognostics`` writes the same
+hook out, since its ``__init__`` must not import engine_model):
 a light ``import`` of the package, the heavy modules (CasADi, torch, scipy.stats) on first
 use of a name that needs them.
 

@@ -33,7 +33,7 @@ the pipeline and the paper's experiment); the physics baseline uses the engine m
 importing ``prognostics`` itself does not (the modules that need it import it).
 """
 
-from engine_model.lazy_names import lazy_names
+from importlib import import_module
 
 # name -> submodule that defines it, imported on first use (PEP 562): ``import prognostics``
 # stays free of torch, ``from prognostics import RulEstimator`` works
@@ -52,4 +52,17 @@ _LAZY = {
 
 __all__ = sorted(_LAZY)
 
-__getattr__, __dir__ = lazy_names(__name__, _LAZY)
+
+# the hook of engine_model.lazy_names, written out here: this ``__init__`` imports nothing of
+# engine_model, so that ``hyprog --help`` (which reads prognostics.choices) never imports it
+# (tests/test_cli.py)
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
