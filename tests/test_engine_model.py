@@ -765,8 +765,10 @@ def test_a_model_for_some_outputs_sensitivities_gives_the_same_numbers(model):
     """``EngineModel(sens_outputs=...)`` (the adaptation's model: its fitted channels only)
     gives those rows of every output's sensitivities, in the order asked, NaN in the other
     rows of ``sensitivities_at``, and refuses an output it was not built for. The same
-    expressions evaluated in another order: equal to 3e-13 relative, not bit for bit.
-    Uncompiled here (CasADi's virtual machine, no compile)."""
+    expressions evaluated in another order: equal to 1e-13 of each array's largest
+    magnitude, not bit for bit (an entry that is a cancellation's remainder, -3.2e-8 beside
+    2.5, differs by 1.3e-10 of itself). Uncompiled here (CasADi's virtual machine, no
+    compile)."""
     from engine_model.validation import InputError
 
     some = EngineModel(design=model.design, compiled=False, sens_outputs=("T50", "Nc", "P15"))
@@ -779,11 +781,12 @@ def test_a_model_for_some_outputs_sensitivities_gives_the_same_numbers(model):
     b = some.sensitivities_of(res.x, w, th, None, ("P15", "T50"))
     for u, v in ((a.theta, b.theta), (a.w, b.w), (a.p, b.p)):
         assert u.shape == v.shape
-        np.testing.assert_allclose(v, u, rtol=1e-11, atol=0.0)
+        np.testing.assert_allclose(v, u, rtol=0.0, atol=1e-13 * np.abs(u).max(initial=0.0))
     at = some.sensitivities_at(res.x, w, th)
     rows = [OUTPUT_NAMES.index(c) for c in ("Nc", "T50", "P15")]
     whole = full.sensitivities_at(res.x, w, th)
-    np.testing.assert_allclose(at.theta[:, rows], whole.theta[:, rows], rtol=1e-11, atol=0.0)
+    np.testing.assert_allclose(at.theta[:, rows], whole.theta[:, rows], rtol=0.0,
+                               atol=1e-13 * np.abs(whole.theta[:, rows]).max())
     others = [i for i in range(len(OUTPUT_NAMES)) if i not in rows]
     assert np.isnan(at.theta[:, others]).all() and np.isnan(at.w[:, others]).all()
     with pytest.raises(InputError, match="no sensitivities of T30"):
@@ -792,3 +795,43 @@ def test_a_model_for_some_outputs_sensitivities_gives_the_same_numbers(model):
         EngineModel(design=model.design, compiled=False, sens_outputs=("T3O",))
     with pytest.raises(InputError, match="distinct"):
         EngineModel(design=model.design, compiled=False, sens_outputs=("T50", "T50"))
+
+
+def test_sensitivities_by_reverse_mode_are_forward_modes_numbers(model):
+    """The sensitivities the model compiles (reverse-mode AD) equal those of forward mode
+    (how they were built until 2026-11-29) to 1e-13 of each output's largest magnitude,
+    with an effect's parameters among the inputs; so do the MHE's stage Jacobians. An
+    unknown mode is refused. Uncompiled (CasADi's virtual machine)."""
+    from calibration.mhe_nlp import StageKernels
+    from engine_model.channels import XS_NAMES
+    from engine_model.physics.effects import parse_effect_spec
+
+    m = EngineModel(design=model.design, compiled=False,
+                    effects=[parse_effect_spec("map_scaling:component=HPC")])
+    w = w_rows([(0.0, 0.0, 100.0), (35000.0, 0.8, 95.0)])
+    th = np.array([np.zeros(N_TH), theta_vec(HPC_eff_mod=-0.02)])
+    x = m.solve(w, th).x
+    p = np.tile(m.p_default, (2, 1))
+    args = [x.T, w.T, th.T, p.T]
+    fwd = m.sensitivity_function("forward").map(2)(*args)
+    rev = m.sensitivity_function("reverse").map(2)(*args)
+    assert len(fwd) == len(rev) == 3  # theta, w, p
+    for f, r in zip(fwd, rev, strict=True):
+        f, r = np.asarray(f), np.asarray(r)
+        np.testing.assert_allclose(r, f, rtol=0.0, atol=1e-13 * np.abs(f).max())
+    assert np.abs(np.asarray(rev[2])).max() > 0  # the effect's parameters do move outputs
+    y = m.outputs_at(x, w, th)[:, [OUTPUT_NAMES.index(c) for c in XS_NAMES]] * 1.001
+    margs = [x.T, th.T, w.T, y.T, np.ones_like(y.T), p.T]
+    kernels = {mode: StageKernels(m, compiled=False, mode=mode) for mode in ("forward",
+                                                                             "reverse")}
+    for name in ("jac", "hgn"):
+        f = kernels["forward"].f[name].map(2)(*margs)
+        r = kernels["reverse"].f[name].map(2)(*margs)
+        for a, b in zip(f if isinstance(f, tuple) else [f], r if isinstance(r, tuple) else [r],
+                        strict=True):
+            a, b = np.asarray(a), np.asarray(b)
+            np.testing.assert_allclose(b, a, rtol=0.0, atol=1e-13 * np.abs(a).max())
+    with pytest.raises(ValueError, match="sideways"):
+        m.sensitivity_function("sideways")
+    with pytest.raises(ValueError, match="sideways"):
+        StageKernels(m, compiled=False, mode="sideways")

@@ -64,6 +64,8 @@ N_THETA = len(THETA_NAMES)
 N_W = len(W_NAMES)
 CONTINUATION_STEPS = 20
 MAX_CONTINUATION_POINTS = 200  # per call; more failures than this are reported as they are
+# CasADi's ``ad_weight``: 0 differentiates by forward mode, 1 by reverse mode
+AD_WEIGHT = {"forward": 0.0, "reverse": 1.0}
 
 
 @dataclass(frozen=True)
@@ -232,33 +234,55 @@ class EngineModel:
         if key in derived or key not in ("resjac", "sens", "dxdth"):
             return derived
         x, w, th, p, res, y = (self._sym[k] for k in ("x", "w", "theta", "p", "res", "y"))
-        cse = {"cse": True}
-        if "J" not in self._sym:
-            # the Newton Jacobian by reverse mode (one adjoint sweep per residual): 17 % fewer
-            # instructions than CasADi's default forward mode here, the same numbers
-            self._sym["J"] = ca.densify(
-                ca.jacobian(res, x, {"helper_options": {"ad_weight": 1.0}}))
-        J = self._sym["J"]
+        J = self._newton_jacobian()
         if key == "resjac":
-            derived["resjac"] = ca.Function("hyprog_resjac", [x, w, th, p], [res, J], cse)
+            derived["resjac"] = ca.Function("hyprog_resjac", [x, w, th, p], [res, J],
+                                            {"cse": True})
             return derived
-        # exact sensitivities by the implicit function theorem (module docstring), of the
-        # outputs ``sens_outputs`` (all by default)
-        n_th, n_w = th.numel(), w.numel()
-        Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th), ca.jacobian(res, w),
-                                        ca.jacobian(res, p)))
+        derived["sens"] = self.sensitivity_function()
+        # dx*/dtheta, used only to tabulate starting guesses (forward mode, as the cached
+        # tables were built)
+        derived["dxdth"] = ca.Function("hyprog_dxdth", [x, w, th, p],
+                                       [-ca.solve(J, ca.jacobian(res, th))])
+        return derived
+
+    def _newton_jacobian(self):
+        """``dr/dx`` (8 x 8, dense), built once: by reverse mode (one adjoint sweep per
+        residual), 17 % fewer instructions than CasADi's default forward mode here, the same
+        numbers."""
+        if "J" not in self._sym:
+            how = {"helper_options": {"ad_weight": AD_WEIGHT["reverse"]}}
+            self._sym["J"] = ca.densify(ca.jacobian(self._sym["res"], self._sym["x"], how))
+        return self._sym["J"]
+
+    def sensitivity_function(self, mode: str = "reverse") -> ca.Function:
+        """The exact sensitivities of the outputs :attr:`sens_outputs` by the implicit
+        function theorem (module docstring) as a CasADi Function of ``(x, w, theta, p)``:
+        ``dy/dtheta - dy/dx J^-1 dr/dtheta``, likewise in ``w`` and ``p``.
+
+        ``mode``: how CasADi differentiates, ``"reverse"`` (one adjoint sweep per residual or
+        output; what the model compiles and evaluates) or ``"forward"`` (one tangent sweep per
+        input; what it did until 2026-11-29, kept to compare). The same numbers to 2e-15 of
+        each output's largest magnitude; reverse takes 7 % fewer instructions for the base
+        model (36 outputs of 14 inputs), 43 % fewer with the discovery loop's 29 effect
+        parameters and 70 % fewer for the adaptation's model (42 parameters, 7 channels)
+        (``benchmarks/sensitivities_ad.py``)."""
+        if mode not in AD_WEIGHT:
+            raise ValueError(f"mode {mode!r}: expected one of {', '.join(AD_WEIGHT)}")
+        J = self._newton_jacobian()
+        x, w, th, p, res, y = (self._sym[k] for k in ("x", "w", "theta", "p", "res", "y"))
+        how = {"helper_options": {"ad_weight": AD_WEIGHT[mode]}}
         if self.sens_outputs != OUTPUT_NAMES:
             y = y[[OUTPUT_NAMES.index(c) for c in self.sens_outputs]]
-        dy_dx = ca.jacobian(y, x)
-        dth = ca.jacobian(y, th) - dy_dx @ Jinv_r[:, :n_th]
-        dw = ca.jacobian(y, w) - dy_dx @ Jinv_r[:, n_th:n_th + n_w]
-        sens_out = [dth, dw]
+        n_th, n_w = th.numel(), w.numel()
+        Jinv_r = ca.solve(J, ca.horzcat(ca.jacobian(res, th, how), ca.jacobian(res, w, how),
+                                        ca.jacobian(res, p, how)))
+        dy_dx = ca.jacobian(y, x, how)
+        out = [ca.jacobian(y, th, how) - dy_dx @ Jinv_r[:, :n_th],
+               ca.jacobian(y, w, how) - dy_dx @ Jinv_r[:, n_th:n_th + n_w]]
         if p.numel():
-            sens_out.append(ca.jacobian(y, p) - dy_dx @ Jinv_r[:, n_th + n_w:])
-        derived["sens"] = ca.Function("hyprog_sensitivities", [x, w, th, p], sens_out, cse)
-        # dx*/dtheta, used only to tabulate starting guesses
-        derived["dxdth"] = ca.Function("hyprog_dxdth", [x, w, th, p], [-Jinv_r[:, :n_th]])
-        return derived
+            out.append(ca.jacobian(y, p, how) - dy_dx @ Jinv_r[:, n_th + n_w:])
+        return ca.Function("hyprog_sensitivities", [x, w, th, p], out, {"cse": True})
 
     def _load_or_build_table(self) -> GuessTable:
         """The starting-guess table, cached on disk next to the compiled code."""
