@@ -133,7 +133,7 @@ def main() -> None:
                 args = [X, W, TH, P]
                 got[mode] = values(lib, args, n)
                 rows.append((label, f"{len(m.p_default)} p", mode, fn.n_instructions(), size,
-                             secs, per_point(lib, args, 64, a.seconds),
+                             secs, per_point(lib, args, min(64, n), a.seconds),
                              per_point(lib, args, n, a.seconds)))
             diffs[label] = max(float(np.max(np.abs(f - r)) / max(np.max(np.abs(f)), 1e-300))
                                for f, r in zip(got["forward"], got["reverse"], strict=True))
@@ -148,7 +148,7 @@ def main() -> None:
             got[mode] = [v for lib, _, _ in libs for v in values(lib, args, n)]
             rows.append((label, "-", mode, sum(f.n_instructions() for f in fns),
                          sum(s for _, s, _ in libs), sum(t for _, _, t in libs),
-                         sum(per_point(lib, args, 64, a.seconds) for lib, _, _ in libs),
+                         sum(per_point(lib, args, min(64, n), a.seconds) for lib, _, _ in libs),
                          sum(per_point(lib, args, n, a.seconds) for lib, _, _ in libs)))
         diffs[label] = max(float(np.max(np.abs(f - r)) / max(np.max(np.abs(f)), 1e-300))
                            for f, r in zip(got["forward"], got["reverse"], strict=True))

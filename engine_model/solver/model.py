@@ -68,6 +68,15 @@ MAX_CONTINUATION_POINTS = 200  # per call; more failures than this are reported 
 AD_WEIGHT = {"forward": 0.0, "reverse": 1.0}
 
 
+def ad_options(mode: str) -> dict:
+    """The options of ``casadi.jacobian`` that differentiate by ``mode``: ``"forward"`` (one
+    tangent sweep per input) or ``"reverse"`` (one adjoint sweep per output); another mode
+    is a ValueError."""
+    if mode not in AD_WEIGHT:
+        raise ValueError(f"mode {mode!r}: expected one of {', '.join(AD_WEIGHT)}")
+    return {"helper_options": {"ad_weight": AD_WEIGHT[mode]}}
+
+
 @dataclass(frozen=True)
 class ResidualSystem:
     """The steady state as equations, for optimisers that solve many points at once.
@@ -225,25 +234,24 @@ class EngineModel:
         return hashlib.sha256("\0".join(parts).encode()).hexdigest()
 
     def _derived(self, key: str) -> dict[str, ca.Function]:
-        """The functions derived from the residual system, each group built on first use: the
-        Newton Jacobian ``resjac`` (0.2 s), and the exact sensitivities ``sens`` (implicit
-        function theorem) with ``dx*/dtheta`` ``dxdth`` (for tabulating starting guesses),
-        which share the solve with the Jacobian (1.7 s: a model evaluated by CasADi's virtual
-        machine, which solves and reads outputs, never builds them)."""
+        """The functions derived from the residual system, each built on first use: the
+        Newton Jacobian ``resjac`` (0.2 s), the exact sensitivities ``sens``
+        (:meth:`sensitivity_function`, about 2 s of graph work) and ``dx*/dtheta`` ``dxdth``
+        (for tabulating starting guesses). A model evaluated by CasADi's virtual machine
+        solves and reads outputs without ever building the last two."""
         derived = self._derived_functions
         if key in derived or key not in ("resjac", "sens", "dxdth"):
             return derived
-        x, w, th, p, res, y = (self._sym[k] for k in ("x", "w", "theta", "p", "res", "y"))
+        x, w, th, p, res = (self._sym[k] for k in ("x", "w", "theta", "p", "res"))
         J = self._newton_jacobian()
         if key == "resjac":
             derived["resjac"] = ca.Function("hyprog_resjac", [x, w, th, p], [res, J],
                                             {"cse": True})
-            return derived
-        derived["sens"] = self.sensitivity_function()
-        # dx*/dtheta, used only to tabulate starting guesses (forward mode, as the cached
-        # tables were built)
-        derived["dxdth"] = ca.Function("hyprog_dxdth", [x, w, th, p],
-                                       [-ca.solve(J, ca.jacobian(res, th))])
+        elif key == "sens":
+            derived["sens"] = self.sensitivity_function()
+        else:  # forward mode, as the cached starting-guess tables were built
+            derived["dxdth"] = ca.Function("hyprog_dxdth", [x, w, th, p],
+                                           [-ca.solve(J, ca.jacobian(res, th))])
         return derived
 
     def _newton_jacobian(self):
@@ -251,8 +259,8 @@ class EngineModel:
         residual), 17 % fewer instructions than CasADi's default forward mode here, the same
         numbers."""
         if "J" not in self._sym:
-            how = {"helper_options": {"ad_weight": AD_WEIGHT["reverse"]}}
-            self._sym["J"] = ca.densify(ca.jacobian(self._sym["res"], self._sym["x"], how))
+            self._sym["J"] = ca.densify(ca.jacobian(self._sym["res"], self._sym["x"],
+                                                    ad_options("reverse")))
         return self._sym["J"]
 
     def sensitivity_function(self, mode: str = "reverse") -> ca.Function:
@@ -263,15 +271,13 @@ class EngineModel:
         ``mode``: how CasADi differentiates, ``"reverse"`` (one adjoint sweep per residual or
         output; what the model compiles and evaluates) or ``"forward"`` (one tangent sweep per
         input; what it did until 2026-11-29, kept to compare). The same numbers to 2e-15 of
-        each output's largest magnitude; reverse takes 7 % fewer instructions for the base
-        model (36 outputs of 14 inputs), 43 % fewer with the discovery loop's 29 effect
-        parameters and 70 % fewer for the adaptation's model (42 parameters, 7 channels)
-        (``benchmarks/sensitivities_ad.py``)."""
-        if mode not in AD_WEIGHT:
-            raise ValueError(f"mode {mode!r}: expected one of {', '.join(AD_WEIGHT)}")
+        each block's (theta, w, p) largest magnitude; reverse takes 7 % fewer instructions
+        for the base model (36 outputs of 14 inputs), 43 % fewer with the discovery loop's
+        29 effect parameters and 70 % fewer for the adaptation's model (42 parameters, 7
+        channels) (``benchmarks/sensitivities_ad.py``)."""
+        how = ad_options(mode)
         J = self._newton_jacobian()
         x, w, th, p, res, y = (self._sym[k] for k in ("x", "w", "theta", "p", "res", "y"))
-        how = {"helper_options": {"ad_weight": AD_WEIGHT[mode]}}
         if self.sens_outputs != OUTPUT_NAMES:
             y = y[[OUTPUT_NAMES.index(c) for c in self.sens_outputs]]
         n_th, n_w = th.numel(), w.numel()
