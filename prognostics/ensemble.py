@@ -203,7 +203,14 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         seeds: Sequence[int] | None = None, quiet: bool = True,
         source: str = "table") -> RulModel:
     """Train one network per seed (default: ``config.seed``) on ``df`` -> a
-    :class:`RulModel` (with a conformal interval when ``config.conformal_units``)."""
+    :class:`RulModel` (with a conformal interval when ``config.conformal_units``).
+
+    The members share one preparation: the validation (and conformal) units drawn by
+    ``config.seed``, and the scaler fitted on the remaining training rows, so that one
+    model has one set of columns and one scaler; they differ by their initialisation and
+    batch order. An ensemble whose members each draw their own validation units (as
+    ``benchmarks/cmapss.py`` cross-validates) is one ``fit`` per seed, with
+    ``replace(config, seed=s)``, and the mean of their predictions."""
     prep = prepare(df, metadata, config, source)
     cfg = prep.config
     device = resolve_device(cfg.device)

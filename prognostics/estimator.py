@@ -56,7 +56,8 @@ class RulEstimator:
 
     Parameters are :class:`TrainConfig`'s fields (``model``, ``inputs``, ``window``,
     ``max_rul``, ``epochs``, ``lr``, ``conformal_units``, ...), checked when given;
-    ``ensemble`` networks are trained, seeds ``seed .. seed + ensemble - 1``. After
+    ``ensemble`` networks are trained, seeds ``seed .. seed + ensemble - 1``, on one
+    validation split (the one ``seed`` draws: :func:`.ensemble.fit`). After
     :meth:`fit`, ``model_`` is the trained :class:`~.ensemble.RulModel`.
     """
 

@@ -90,6 +90,19 @@ def test_runs_under_other_settings_and_floors_of_other_cuts_are_summarised_apart
     assert "constant floor" in rows and "constant floor, cut from cycle 20" in rows
 
 
+def test_a_hybrid_is_paired_only_with_data_driven_of_the_same_units_and_partition(bench):
+    """A pooled hybrid has no reference but the pooled data-driven network (the unpooled
+    one would mix the pooling into the inputs' effect), and a partition pairs with its own."""
+    labels = ["data-driven", "data-driven, fold seed 1", "data-driven + FD001 units"]
+    assert bench.reference("hybrid-theta --params all", labels) == "data-driven"
+    assert bench.reference("hybrid-theta, fold seed 1", labels) == "data-driven, fold seed 1"
+    assert (bench.reference("hybrid-theta --params all, adapted ab12cd34 + FD001 units", labels)
+            == "data-driven + FD001 units")
+    assert bench.reference("hybrid-theta --params all + FD003 units", labels) is None
+    assert bench.reference("hybrid-theta + FD001 units, fold seed 1", labels) is None
+    assert bench.reference("data-driven + FD001 units", labels) is None
+
+
 def test_the_test_files_are_calibrated_as_the_cross_validated_variant(bench, tmp_path,
                                                                      monkeypatch):
     calls = []
