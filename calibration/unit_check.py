@@ -234,6 +234,11 @@ def check_result(result, unit, setup: CalibrationSetup) -> list[str]:
 
 
 AT_BOUND = "the box, not the data, sets it there (its std is not meaningful)"
+#: Added when most of a fleet's units sit at one bound: a mismatch shared by the fleet, not
+#: one engine's health (:func:`summarise_bound_hits`)
+FLEET_AT_BOUND = ("most units at once: the model may not match this engine (adapt it to the "
+                  "fleet with `hyprog adapt`, then calibrate with --model-effects; on measured "
+                  "data also --noise data --model-error consistent)")
 
 
 def bound_hits(result, setup: CalibrationSetup) -> list[dict]:
@@ -254,7 +259,10 @@ def bound_hits(result, setup: CalibrationSetup) -> list[dict]:
 def summarise_bound_hits(units: dict) -> list[str]:
     """One line per parameter and bound over a fleet: ``units`` maps a unit to its record
     with ``"at_bound"`` (:func:`bound_hits`) and ``"samples"``. What a reader of a 100-unit
-    fleet needs instead of a line per unit (the per-unit lines stay in the JSON report)."""
+    fleet needs instead of a line per unit (the per-unit lines stay in the JSON report). A
+    bound hit in more than half of a fleet of at least two units adds
+    :data:`FLEET_AT_BOUND`: degradation differs from engine to engine, a model mismatch does
+    not."""
     grouped: dict[tuple, list] = {}
     for u, rec in units.items():
         for h in rec.get("at_bound", []):
@@ -266,6 +274,8 @@ def summarise_bound_hits(units: dict) -> list[str]:
         lines.append(f"{param} is at its bound {bound:g} in {len(hits)} of {len(units)} units"
                      f" ({_listed([u for u, _ in hits])}; {k:,} of their {n:,} samples): "
                      f"{AT_BOUND}")
+        if len(units) >= 2 and 2 * len(hits) > len(units):
+            lines[-1] += f"; {FLEET_AT_BOUND}"
     return lines
 
 

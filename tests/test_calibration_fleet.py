@@ -334,8 +334,9 @@ def test_the_client_reads_short_units_in_groups_bounded_by_rows(tmp_path):
 
 def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
     """A 100-unit C-MAPSS fleet printed a line per unit and parameter at a bound (hundreds of
-    lines); the command now prints one per parameter and bound, the JSON keeps every unit's."""
-    from calibration.unit_check import AT_BOUND, summarise_bound_hits
+    lines); the command now prints one per parameter and bound, the JSON keeps every unit's.
+    A bound hit by most of the fleet points to adapting the model (a shared mismatch)."""
+    from calibration.unit_check import AT_BOUND, FLEET_AT_BOUND, summarise_bound_hits
 
     units = {u: {"samples": 200, "at_bound": [
         {"param": "LPT_flow_mod_hat", "bound": 0.05, "samples": 10 * u, "of": 200}]}
@@ -346,7 +347,7 @@ def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
     lines = summarise_bound_hits(units)
     assert lines == [
         "LPT_flow_mod_hat is at its bound 0.05 in 7 of 9 units (units 1, 2, 3, 4, 5, ...; "
-        f"280 of their 1,400 samples): {AT_BOUND}",
+        f"280 of their 1,400 samples): {AT_BOUND}; {FLEET_AT_BOUND}",
         f"HPT_eff_mod_hat is at its bound -0.15 in 1 of 9 units (unit 8; 1 of their 150 "
         f"samples): {AT_BOUND}"]
     assert summarise_bound_hits({1: {"samples": 5, "at_bound": []}}) == []

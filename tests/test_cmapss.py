@@ -168,11 +168,23 @@ def test_rul_file_length_must_match_the_test_units(files, tmp_path):
         read_cmapss(train, test)
 
 
-def test_repeated_cycle_is_an_error(files):
-    with files[0].open("a") as fh:
-        fh.write(line(2, 3) + "\n")
-    with pytest.raises(InputError, match="unit 2, cycle 3 appears twice"):
-        read_cmapss(files[0])
+@pytest.mark.parametrize("edit, message", [
+    # a cycle repeated, going back, skipping one: the RUL is counted back from the last cycle
+    (lambda rows: rows[:3] + [rows[2]] + rows[3:], r"line 4, unit 1: cycle 3 appears twice "
+     r"\(line 3 too\)"),
+    (lambda rows: rows[:3] + [rows[1]] + rows[3:], r"line 4, unit 1: cycle 2 after "
+     r"cycle 3"),
+    (lambda rows: rows[:2] + rows[3:], r"line 3, unit 1: cycle 4 after cycle 2 \(cycles must "
+     r"increase by one\)"),
+    # unit 1 again at the end, after unit 2: it would be merged across a gap
+    (lambda rows: rows + [line(1, 99)], r"unit 1 again, after other units \(its rows began "
+     r"at line 1\)"),
+])
+def test_a_unit_out_of_order_is_refused_naming_the_line(tmp_path, edit, message):
+    rows = [line(u, c) for u, n in TRAIN_CYCLES.items() for c in range(1, n + 1)]
+    bad = write_lines(tmp_path / "train_FD002.txt", edit(rows))
+    with pytest.raises(InputError, match=message):
+        read_cmapss(bad)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -174,8 +174,9 @@ def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
     sensors (module doc).
     Raises InputError naming the file, line and column of a line with the wrong number of
     columns, a token that is not a number, a NaN, a unit / cycle that is not an integer from 1
-    to 2**53 - 1, a setting outside the flight envelope by more than its noise or a sensor
-    reading that is not positive, and for a file without data lines."""
+    to 2**53 - 1, a unit whose rows are not together or whose cycles do not follow one
+    another (:func:`_check_order`), a setting outside the flight envelope by more than its
+    noise or a sensor reading that is not positive, and for a file without data lines."""
     p = existing_path(path)
     rows = _lines(p)
     if not rows:
@@ -193,6 +194,8 @@ def read_cmapss_text(path: str | os.PathLike) -> pd.DataFrame:
         raise InputError(f"{p}: line {rows[i][0]}, column {CMAPSS_SENSORS[j]}: "
                          f"{sensors[i, j]:g} is not positive (every C-MAPSS sensor reads a "
                          "positive quantity)")
+    _check_order(p, [line for line, _ in rows], values[:, 0].astype(np.int64),
+                 values[:, 1].astype(np.int64))
     df = pd.DataFrame(values, columns=list(CMAPSS_COLUMNS))
     df["unit"] = df["unit"].astype(np.int64)
     df["cycle"] = df["cycle"].astype(np.int64)
@@ -271,12 +274,29 @@ def _rul_to_failure(df: pd.DataFrame, rul_at_end: pd.Series | None = None) -> np
     return rul.astype(np.int64)
 
 
-def _check_unique_cycles(df: pd.DataFrame, path: Path) -> None:
-    dup = df.duplicated(["unit", "cycle"])
-    if dup.any():
-        i = int(np.flatnonzero(dup.to_numpy())[0])
-        raise InputError(f"{path}: unit {df.at[i, 'unit']}, cycle {df.at[i, 'cycle']} appears"
-                         " twice")
+def _check_order(path: Path, lines: Sequence[int], unit: np.ndarray, cycle: np.ndarray
+                 ) -> None:
+    """The layout of NASA's files: a unit's rows together, one row per cycle, in order
+    (cycle ``c + 1`` after cycle ``c``). A unit that comes back after another unit, a cycle
+    repeated, going back or skipping cycles would give wrong RUL labels (counted back from a
+    unit's last cycle) without a word: refused, naming the line."""
+    new_block = np.r_[True, unit[1:] != unit[:-1]]
+    seen: dict[int, int] = {}
+    for i in np.flatnonzero(new_block):
+        u = int(unit[i])
+        if u in seen:
+            raise InputError(f"{path}: line {lines[i]}: unit {u} again, after other units (its "
+                             f"rows began at line {lines[seen[u]]}); a unit's rows must be "
+                             "together")
+        seen[u] = int(i)
+    step = np.diff(cycle)
+    bad = np.flatnonzero(~new_block[1:] & (step != 1))
+    if len(bad):
+        i = int(bad[0]) + 1
+        c, before = int(cycle[i]), int(cycle[i - 1])
+        what = (f"cycle {c} appears twice (line {lines[i - 1]} too)" if c == before else
+                f"cycle {c} after cycle {before} (cycles must increase by one)")
+        raise InputError(f"{path}: line {lines[i]}, unit {int(unit[i])}: {what}")
 
 
 def offset_for_test_units(train_units: Sequence[int]) -> int:
@@ -298,7 +318,6 @@ def read_cmapss(train: str | os.PathLike, test: str | os.PathLike | None = None,
                          f" {missing} file")
     train_path = existing_path(train)
     dev = read_cmapss_text(train_path)
-    _check_unique_cycles(dev, train_path)
     dev.insert(2, "RUL", _rul_to_failure(dev))
     frames = [dev]
     offset = offset_for_test_units(dev["unit"].unique())
@@ -308,7 +327,6 @@ def read_cmapss(train: str | os.PathLike, test: str | os.PathLike | None = None,
     if test is not None:
         test_path, rul_path = existing_path(test), existing_path(rul)
         tst = read_cmapss_text(test_path)
-        _check_unique_cycles(tst, test_path)
         at_end = read_rul_file(rul_path)
         units = np.sort(tst["unit"].unique())
         if len(at_end) != len(units):

@@ -1,0 +1,117 @@
+"""Similarity-based RUL on the health index: the development units' run-to-failure trajectories
+as a library, no network.
+
+The method of Wang, Yu, Siegel & Lee (*A similarity-based prognostics approach for remaining
+useful life estimation of engineered systems*, PHM 2008; the winner of the PHM08 challenge on
+C-MAPSS-type data), on the health index of θ̂ (:mod:`.flights`, ``HI_hat``: the physics
+says where the engine is, the fleet's histories say how long such an engine lasts):
+
+1. **Library.** Each development unit ``i``: its health index per flight, ``h_i(1 .. L_i)``,
+   and its RUL at each flight.
+2. **Match.** At flight ``n`` of a unit, its last ``k = min(K, n)`` flights
+   ``x = h(n - k + 1 .. n)`` are compared with every window of ``k`` consecutive flights of
+   each library unit; the mean squared difference ``d_i(m)`` of the window ending at the
+   library's flight ``m`` is smallest at ``m_i``, whose RUL ``r_i = RUL_i(m_i)`` is the unit's
+   vote. Matching a window, not one flight, compares the level and the rate of loss: the
+   context across flights.
+3. **Weight.** Two noisy copies of one trajectory differ by ``2 σ²`` per flight, so the
+   Gaussian likelihood of unit ``i``'s best match is ``exp(-k d_i / (4 σ²))``; the prediction
+   is the likelihood-weighted mean of the votes (a uniform prior over library units),
+   ``ŷ = Σ w_i r_i / Σ w_i``, ``w_i = exp(-k (d_i - min_j d_j) / (4 σ²))``. ``σ²`` is the
+   health index's noise per flight, estimated on the library as half the mean variance of
+   its units' first differences (the trend's contribution to a difference is negligible
+   beside the noise at one flight).
+
+Every prediction of flight ``n`` reads flights ``1 .. n`` of its unit only (causal); it is
+issued at the flight's end, like the flight models' (:mod:`.flights`). Library units
+shorter than ``k`` flights do not vote.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from engine_model.validation import InputError
+
+from .features import TARGET
+
+HI_COLUMN = "HI_hat"
+
+
+def _series(flights: pd.DataFrame, column: str, source: str) -> dict[int, pd.DataFrame]:
+    missing = [c for c in ("unit", "cycle", column) if c not in flights.columns]
+    if missing:
+        raise InputError(f"{source}: missing column(s) {', '.join(missing)} (a flight table "
+                         "with the health index of θ̂: prognostics.flights)")
+    if not np.isfinite(flights[column].to_numpy(float)).all():
+        raise InputError(f"{source}: {column} is not finite in every flight")
+    return {int(u): g.sort_values("cycle") for u, g in flights.groupby("unit", sort=True)}
+
+
+@dataclass(frozen=True)
+class SimilarityRul:
+    """The library of the module docstring and the match's window ``K`` (flights)."""
+
+    library: tuple  # ((hi, rul) per development unit, in unit order)
+    sigma2: float
+    window: int
+    column: str = HI_COLUMN
+
+    @classmethod
+    def fit(cls, flights: pd.DataFrame, window: int = 10, column: str = HI_COLUMN
+            ) -> SimilarityRul:
+        """The library of the development units' flight table ``flights`` (with ``RUL``)."""
+        if int(window) != window or window < 1:
+            raise InputError(f"similarity: window must be an integer >= 1, got {window}")
+        if TARGET not in flights.columns:
+            raise InputError(f"similarity: the development flights need a {TARGET} column")
+        units = _series(flights, column, "similarity library")
+        lib = tuple((g[column].to_numpy(float), g[TARGET].to_numpy(float))
+                    for g in units.values())
+        diffs = [np.var(np.diff(h)) for h, _ in lib if len(h) > 2]
+        if not diffs:
+            raise InputError("similarity: the library needs a unit with at least three flights")
+        sigma2 = 0.5 * float(np.mean(diffs))
+        if not sigma2 > 0:
+            raise InputError(f"similarity: {column} does not vary along the library's units")
+        return cls(lib, sigma2, int(window), column)
+
+    def predict_unit(self, hi) -> np.ndarray:
+        """The prediction at every flight of one unit whose health index per flight is
+        ``hi`` (in flight order)."""
+        h = np.asarray(hi, float)
+        out = np.empty(len(h))
+        for n in range(len(h)):
+            k = min(self.window, n + 1)
+            x = h[n - k + 1:n + 1]
+            d, votes = [], []
+            for lib_hi, lib_rul in self.library:
+                if len(lib_hi) < k:
+                    continue
+                windows = np.lib.stride_tricks.sliding_window_view(lib_hi, k)
+                dist = np.mean((windows - x) ** 2, axis=1)
+                m = int(np.argmin(dist))
+                d.append(dist[m])
+                votes.append(lib_rul[m + k - 1])
+            if not votes:
+                raise InputError(f"similarity: no library unit has {k} flights")
+            d = np.asarray(d)
+            w = np.exp(-k * (d - d.min()) / (4.0 * self.sigma2))
+            out[n] = float(np.sum(w * np.asarray(votes)) / np.sum(w))
+        return out
+
+    def predict(self, flights: pd.DataFrame, max_rul: float | None = None) -> pd.DataFrame:
+        """Per flight of ``flights`` (a flight table with the health index): ``unit``,
+        ``cycle``, ``RUL`` and ``hs`` where present, and ``RUL_pred`` (capped at ``max_rul``
+        like capped targets when given)."""
+        keep = [c for c in ("unit", "cycle", TARGET, "hs") if c in flights.columns]
+        frames = []
+        for _, g in _series(flights, self.column, "similarity").items():
+            f = g[keep].copy()
+            pred = self.predict_unit(g[self.column].to_numpy(float))
+            f["RUL_pred"] = pred if max_rul is None else np.clip(pred, 0.0, max_rul)
+            frames.append(f)
+        return pd.concat(frames, ignore_index=True)
