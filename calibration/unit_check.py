@@ -279,6 +279,15 @@ def summarise_bound_hits(units: dict) -> list[str]:
     return lines
 
 
+def fleet_warnings(warnings: list[str], units: dict) -> list[str]:
+    """A fleet calibration's warnings as a reader gets them: ``warnings`` without the
+    per-unit bound lines, then one line per parameter and bound over the fleet
+    (:func:`summarise_bound_hits`; ``units`` as there). What ``hyprog calibrate`` prints
+    and ``hyprog pipeline`` reports (every unit's lines stay in the per-unit records)."""
+    per_unit = {w for v in units.values() for w in v.get("warnings", []) if w.endswith(AT_BOUND)}
+    return [w for w in warnings if w not in per_unit] + summarise_bound_hits(units)
+
+
 def _listed(units: list) -> str:
     """``unit 3`` or ``units 1, 2, 3, 4, 5, ...`` (the first five)."""
     names = [str(u) for u in units]
@@ -305,5 +314,5 @@ def summarise_unobservable(units: dict, prior_std: float) -> list[str]:
 
 
 __all__ = ["ChannelCheck", "CONVERSIONS", "bound_hits", "check_result", "check_units",
-           "check_units_many", "compare_channels", "summarise_bound_hits",
+           "check_units_many", "compare_channels", "fleet_warnings", "summarise_bound_hits",
            "summarise_unobservable"]

@@ -148,7 +148,7 @@ def run(
     from calibration import UnobservableWarning, estimator_class
     from calibration.calibrate_fleet import calibrate_fleet
     from calibration.consistency import with_measured_noise
-    from calibration.unit_check import AT_BOUND, summarise_bound_hits
+    from calibration.unit_check import fleet_warnings
     from engine_model.channels import XS_NAMES
 
     with user_errors(output=out), warnings.catch_warnings(record=True) as caught:
@@ -191,8 +191,7 @@ def run(
     if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     # a line per parameter and bound over the fleet, not one per unit (every unit's is in --json)
-    per_unit = {w for v in res.units.values() for w in v["warnings"] if w.endswith(AT_BOUND)}
-    for w in [w for w in warned if w not in per_unit] + summarise_bound_hits(res.units):
+    for w in fleet_warnings(warned, res.units):
         warn(w)
     c = console()
     c.print(f"sensors ({len(res.sensors)}): {', '.join(res.sensors)}"

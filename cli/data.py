@@ -40,7 +40,8 @@ def info(
 
     with user_errors(path):
         columns = datasets.read_columns(path)
-        df, meta = datasets.read_dataset(path, columns=[c for c in ("Fc", "hs") if c in columns])
+        df, meta = datasets.read_dataset(path, columns=[c for c in ("Fc", "hs", "RUL")
+                                                        if c in columns])
         rep = datasets.summarize(df, meta)
         rep["columns"] = datasets.column_groups(columns)
     if as_json:
@@ -50,7 +51,7 @@ def info(
 
     out = console()
     head = [f"{path}", f"{rep['totals']['units']} units", f"{rep['totals']['rows']:,} rows",
-            f"{rep['totals']['cycles']} cycles"]
+            f"{rep['totals']['cycles']:,} cycles"]
     if rep.get("sample_rate_hz"):
         head.append(f"{rep['sample_rate_hz']:g} Hz")
     for key in ("preset", "seed"):

@@ -10,7 +10,9 @@ Layout of a model directory::
 seeds, units ...), the input ``columns``, the ``scaler`` (minimum / maximum per column), the
 ``conformal`` interval (or null), ``trained_with`` (torch's version, the device and torch's
 thread count: what the bits of a run depend on besides seed and data, :mod:`.training`; null
-in a model written before it was recorded) and per member its file, ``sha256``, seed, best
+in a model written before it was recorded), ``units`` (the development units of each role in
+training, ``training`` / ``validation`` / ``conformal``: evaluating one of them warns; null
+in a model written before they were recorded) and per member its file, ``sha256``, seed, best
 epoch, parameter count and training history; then ``sha256``: the SHA-256 of the canonical
 JSON (sorted keys, no spaces) of everything else in the manifest.
 
@@ -103,6 +105,7 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
             "scaler": model.scaler.to_dict(),
             "dropped_constant": list(model.info.get("dropped_constant", [])),
             "health_effects": list(model.info.get("health_effects", [])),
+            "units": model.info.get("units"),
             "conformal": None if model.conformal is None else model.conformal.to_dict(),
             "trained_with": model.info.get("trained_with"),
             "members": members}
@@ -249,6 +252,8 @@ def load_model(path: str | os.PathLike) -> RulModel:
         scaler = scaler_from_dict(body["scaler"])
         dropped = [str(c) for c in body.get("dropped_constant", [])]
         effects = [str(e) for e in body.get("health_effects", [])]
+        used = body.get("units")  # the units of each role in training (None: not recorded)
+        used = None if used is None else {str(k): [int(u) for u in v] for k, v in used.items()}
         conformal = None if body["conformal"] is None else \
             SplitConformal.from_dict(body["conformal"])
         entries = list(body["members"])
@@ -263,6 +268,6 @@ def load_model(path: str | os.PathLike) -> RulModel:
     model = RulModel(config, columns, scaler, members, conformal,
                      info={"hyprog_version": version, "path": str(p),
                            "dropped_constant": dropped, "health_effects": effects,
-                           "trained_with": body.get("trained_with")})
+                           "units": used, "trained_with": body.get("trained_with")})
     model.networks()  # weights must fit the recorded network
     return model

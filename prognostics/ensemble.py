@@ -48,8 +48,8 @@ from .features import TARGET, check_table, sort_table
 from .flights import one_per_cycle, to_samples
 from .metrics import evaluate_predictions
 from .models import build_model
-from .scaling import Scaler
-from .splits import CONFORMAL, TRAIN, segments
+from .scaling import MinMaxScaler, Scaler
+from .splits import CONFORMAL, TRAIN, VALIDATION, segments
 from .train_config import TrainConfig
 from .training import (
     Member,
@@ -133,6 +133,7 @@ class RulModel:
                              "model was trained on")
         check_table(frame, self.columns, source, target=False)
         x = self.scaler.transform_frame(frame, source=source)
+        _warn_far_outside(x, self.scaler, source)
         unit = frame["unit"].to_numpy()
         a, b = segments(unit, np.zeros(len(unit), np.int8))
         short = np.flatnonzero(b - a < self.window)
@@ -188,8 +189,40 @@ class RulModel:
             raise InputError(f"{source}: no {TARGET} column to evaluate against")
         rows = df[df["unit"].isin([int(u) for u in units])] if units is not None else df
         check_table(rows, [], source, target=True)  # the truth: finite, not negative
+        used = {int(u): role for role, us in (self.info.get("units") or {}).items()
+                for u in us}
+        seen = sorted({int(u) for u in rows["unit"].unique()} & set(used))
+        if seen:
+            roles = ", ".join(sorted({used[u] for u in seen}))
+            warnings.warn(f"{source}: unit(s) {', '.join(map(str, seen[:10]))}"
+                          f"{' ...' if len(seen) > 10 else ''} were used to train this model "
+                          f"({roles}): their error is not a test error", UserWarning,
+                          stacklevel=2)
         pred = self.predict(df, units, device, source, progress)
         return evaluate_predictions(pred), pred
+
+
+#: A scaled input this far outside [-1, 1] (the training range) is one training range beyond
+#: either end: :func:`_warn_far_outside`
+FAR_OUTSIDE = 3.0
+#: ... in more than this fraction of the rows
+FAR_FRACTION = 0.01
+
+
+def _warn_far_outside(x: np.ndarray, scaler, source: str) -> None:
+    """Warn when min-max scaled inputs lie more than one training range beyond it in more
+    than 1 % of the rows (an FD001 model given FD002's six conditions predicted 0 for every
+    row without a word). Standardised inputs (per condition) have no range to compare with."""
+    if not isinstance(scaler, MinMaxScaler) or not len(x):
+        return
+    frac = np.mean(np.abs(x) > FAR_OUTSIDE, axis=0)
+    cols = [c for c, f in zip(scaler.columns, frac, strict=True) if f > FAR_FRACTION]
+    if cols:
+        warnings.warn(f"{source}: input column(s) {', '.join(cols[:5])}"
+                      f"{' ...' if len(cols) > 5 else ''} lie beyond the training range by "
+                      f"more than that range in over {FAR_FRACTION:.0%} of the rows: the model "
+                      "extrapolates (data of another engine or fleet?)", UserWarning,
+                      stacklevel=3)
 
 
 def trained_with(device: torch.device) -> dict:
@@ -222,8 +255,13 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         label = f"{cfg.model} {cfg.inputs} seed {s}"
         with progress_bar(len(prep.windows[TRAIN]), label, quiet) as (on_batch, on_epoch):
             members.append(train_member(prep, s, device, on_batch, on_epoch))
+    unit = prep.frame["unit"].to_numpy()
+    roles = {name: sorted({int(u) for u in unit[prep.roles == role]})
+             for name, role in (("training", TRAIN), ("validation", VALIDATION),
+                                ("conformal", CONFORMAL))}
     model = RulModel(cfg, tuple(prep.columns), prep.scaler, members,
-                     info={"dropped_constant": list(prep.dropped),
+                     info={"units": {k: v for k, v in roles.items() if v},
+                           "dropped_constant": list(prep.dropped),
                            "health_effects": list(prep.health_effects),
                            "trained_with": trained_with(device)})
     conf = prep.windows.get(CONFORMAL)

@@ -304,6 +304,53 @@ def test_a_model_written_before_trained_with_was_recorded_loads(trained, tmp_pat
     assert load_model(d).info["trained_with"] is None
 
 
+def test_evaluating_a_unit_used_in_training_warns(trained, tmp_path):
+    """The model records the units of each role in training; evaluating one of them warns
+    (its error is not a test error), and a model written before they were recorded loads
+    and evaluates without the warning."""
+    import warnings
+
+    m, path, df = trained
+    back = load_model(path)
+    assert back.info["units"] == m.info["units"]
+    assert m.info["units"]["conformal"] == [4]
+    train_unit = m.info["units"]["training"][0]
+    with pytest.warns(UserWarning, match=rf"unit\(s\) {train_unit} were used to train this "
+                      r"model \(training\): their error is not a test error"):
+        back.evaluate(df, [train_unit])
+    held = sorted(set(df["unit"].unique()) - {u for us in m.info["units"].values()
+                                               for u in us})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back.evaluate(df, held)  # the test units: no warning
+    d = _copy(path, tmp_path)
+    resign_manifest(d, drop=("units",))
+    old = load_model(d)
+    assert old.info["units"] is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        old.evaluate(df, [train_unit])
+
+
+def test_inputs_far_outside_the_training_range_warn(trained):
+    """An FD001 model given FD002's six conditions predicted 0 everywhere without a word:
+    inputs more than one training range beyond it warn, naming the columns."""
+    import warnings
+
+    m, _, df = trained
+    held = [5]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m.predict(df, held)
+    far = df.copy()
+    col = m.columns[0]
+    lo, hi = m.scaler.minimum[0], m.scaler.maximum[0]
+    far[col] = hi + 2.5 * (hi - lo)
+    with pytest.warns(UserWarning, match=rf"input column\(s\) {col} lie beyond the training "
+                      "range"):
+        m.predict(far, held)
+
+
 def test_foreign_files_are_refused(trained, tmp_path):
     _, path, _ = trained
     with pytest.raises(InputError, match="no such model directory"):

@@ -42,7 +42,9 @@ def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | None = None) -> di
     """A JSON-serialisable summary of a fleet table (for ``hyprog data info``).
 
     ``units``: one entry per unit with ``split`` (dev/test from the metadata; all dev when it
-    lists neither), ``cycles`` (distinct cycles), ``rows``, ``eol`` (last cycle), ``t_s`` (first
+    lists neither), ``cycles`` (distinct cycles), ``rows``, ``eol`` (the end of life: the last
+    cycle, plus its ``RUL`` where the table has one, so that a test unit cut before failure
+    shows when it fails), ``t_s`` (first
     cycle with ``hs == 0``, None if none or no ``hs``), ``Fc`` (the flight classes flown);
     ``totals`` (units, rows, cycles); ``sample_rate_hz``; ``effects``; ``columns`` by group.
     """
@@ -52,6 +54,9 @@ def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | None = None) -> di
     rows = by_unit.size()
     cycles = by_unit["cycle"].nunique()
     eol = by_unit["cycle"].max()
+    if "RUL" in df.columns:  # a unit cut before failure (a test unit): its last cycle + RUL
+        last = df.loc[by_unit["cycle"].idxmax()].set_index("unit")
+        eol = eol + last["RUL"].reindex(eol.index).fillna(0).round().astype(np.int64)
     onset = (df.loc[df["hs"] == 0].groupby("unit")["cycle"].min() if "hs" in df.columns
              else pd.Series(dtype=np.int64))
     classes = by_unit["Fc"].unique() if "Fc" in df.columns else pd.Series(dtype=object)

@@ -95,8 +95,9 @@ def _fleet_blocks(fleet: dict, split: dict) -> list:
             "report has no calibrated interval (set [data] conformal_units to get one)")
     t = fleet["totals"]
     return [("h", 2, "Fleet"),
-            ("p", f"{t['units']} units, {t['rows']:,} samples, {t['cycles']} flight cycles at "
-                  f"{_f(fleet.get('sample_rate_hz'))} Hz"
+            ("p", f"{t['units']} units, {t['rows']:,} samples, {t['cycles']:,} flight cycles"
+                  + (f" at {_f(fleet['sample_rate_hz'])} Hz" if fleet.get("sample_rate_hz")
+                     else " (one sample a cycle)" if t["rows"] == t["cycles"] else "")
                   + (f"; preset {fleet['preset']}, seed {fleet['seed']}"
                      if "preset" in fleet else "") + f". Split {how}; {conf}."),
             ("table", ["unit", "role", "samples", "cycles", "end of life", "onset t_s",
@@ -182,9 +183,9 @@ def _summary_blocks(ev: dict, acc: dict | None, cal: dict, disc: dict | None,
             band = f"{_f(lu['lower'])} to {_f(lu['upper'])}" if "lower" in lu else "–"
             rows.append([u, inputs, lu["cycle"], _f(lu["RUL_pred"]),
                          *([band] if interval else []), _f(lu["RUL"]),
-                         _f(-lu["delta"], "+.3g")])
+                         _f(lu["delta"], "+.3g")])
     head = ["unit", "inputs", "last cycle", "predicted RUL",
-            *(["interval"] if interval else []), "true RUL", "predicted - true"]
+            *(["interval"] if interval else []), "true RUL", "Δ = true - predicted"]
     if disc is None:
         verdict = "Model discrepancy: not checked ([discover] enabled = false)."
     else:

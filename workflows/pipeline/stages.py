@@ -238,6 +238,8 @@ def _calibrate_into(ctx: Context, table: Path, data: Path, effects=()):
 
 def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
     """theta_hat of every unit into ``folder/features`` (a rerun resumes unit by unit)."""
+    from calibration.unit_check import fleet_warnings
+
     c = ctx.config["calibrate"]
     res = _calibrate_into(ctx, folder / "features", data)
     return _round_trip({"table": ctx.rel(folder / "features"), "method": c["method"],
@@ -247,7 +249,8 @@ def calibrate(ctx: Context, folder: Path, data: Path) -> dict:
                         "units": {u: {"samples": v["samples"],
                                       "n_nonconverged": v["n_nonconverged"]}
                                   for u, v in sorted(res.units.items())},
-                        "resumed_units": res.skipped, "warnings": list(res.warnings)})
+                        "resumed_units": res.skipped,
+                        "warnings": fleet_warnings(list(res.warnings), res.units)})
 
 
 def discover(ctx: Context, folder: Path, data: Path, calibrated: dict) -> dict:
