@@ -178,9 +178,15 @@ def run(
                                           if issubclass(w.category, UnobservableWarning)}),
                                  *res.warnings]))
     nonconverged = sum(v["n_nonconverged"] for v in res.units.values())
-    absent = [c for c in XS_NAMES if c not in res.sensors]
+    from engine_model.datasets import read_columns
+
+    in_data = set(read_columns(data))
+    absent = [c for c in XS_NAMES if c not in res.sensors and c not in in_data]
+    # in the data but not used: not physical (C-MAPSS's Ps30), constant, or not asked for
+    left_out = [c for c in XS_NAMES if c not in res.sensors and c in in_data]
     rep = {"out": str(out), "method": method, "params": list(setup.params),
            "sensors": list(res.sensors), "sensors_absent": absent,
+           "sensors_left_out": left_out,
            "units": {str(u): v for u, v in sorted(res.units.items())},
            "skipped": res.skipped, "samples": res.samples, "n_nonconverged": nonconverged,
            "seconds": round(res.seconds, 2), "samples_per_second": res.samples_per_second,
@@ -195,7 +201,9 @@ def run(
         warn(w)
     c = console()
     c.print(f"sensors ({len(res.sensors)}): {', '.join(res.sensors)}"
-            + (f" (absent: {', '.join(absent)})" if absent else ""), soft_wrap=True)
+            + (f" (absent: {', '.join(absent)})" if absent else "")
+            + (f" (in the data, not used: {', '.join(left_out)})" if left_out else ""),
+            soft_wrap=True)
     if res.skipped:
         c.print(f"resumed: units {', '.join(map(str, res.skipped))} were already in {out}")
     c.print(f"wrote {out}: {len(res.units)} unit(s), {res.samples:,} samples with {method} in "

@@ -326,10 +326,13 @@ def test_import_then_calibrate_runs_on_a_noisy_sea_level_file(runner, tmp_path):
     data, feats = tmp_path / "fd001", tmp_path / "features"
     r = runner.invoke(app, ["data", "import-cmapss", str(train), "--out", str(data)])
     assert r.exit_code == 0, r.output
-    r = runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--quiet"])
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--json"])
     assert r.exit_code == 0, r.output
     df, _ = read_dataset(feats)
     assert len(df) == 3 and df["HPT_eff_mod_hat"].notna().all()
+    # NASA's Ps30 is in the data and left out (not physical), not "absent"
+    rep = json.loads(r.stdout)
+    assert "Ps30" in rep["sensors_left_out"] and "Ps30" not in rep["sensors_absent"]
 
 
 def test_import_calibrate_train_evaluate_run_unchanged_on_six_conditions(runner, tmp_path):

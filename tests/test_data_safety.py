@@ -268,7 +268,7 @@ def test_theta_at_a_bound_and_sensors_used_are_reported(runner, tmp_path, small)
     assert r.exit_code == 0, r.stderr
     rep = json.loads(r.stdout)
     assert "T30" not in rep["sensors"] and rep["sensors_absent"] == ["T30"]
-    assert len(rep["sensors"]) == 15
+    assert len(rep["sensors"]) == 15 and rep["sensors_left_out"] == []
     at_bound = [w for w in rep["warnings"] if "at its bound" in w]
     assert at_bound, rep["warnings"]
     assert rep["units"]["1"]["warnings"] == rep["warnings"]
