@@ -101,3 +101,28 @@ def test_health_features_chooses_on_every_fold_among_the_hybrids():
             + cv("trend", "physics", 20, [3, 3]))
     assert hf.chosen_on_cv(runs) == ("tcn", "physics", 10)
     assert hf.chosen_on_cv(cv("trend", "physics", 20, [3, 3])) is None
+
+
+def test_health_features_reports_a_model_without_seeds(tmp_path):
+    """The similarity predictor (no network, no seeds) is a candidate like the networks: it
+    can be chosen, and its test row has no per-seed column."""
+    hf = load_script(BENCHMARKS / "health_features.py", "health_features_bench")
+    scores = {"rmse": 4.0, "last_rmse": 1.0, "horizon": 30.0,
+              "phases": {"before onset": 5.0, "after onset": 3.0, "RUL <= 30": 2.0}}
+
+    def rec(stage, fold, model, inputs, window, rmse, seeds):
+        return {"key": f"{stage}{fold}{model}{inputs}{window}", "kind": "model",
+                "stage": stage, "fold": fold, "model": model, "inputs": inputs,
+                "window": window, "held": [1], "ensemble": {**scores, "rmse": rmse},
+                "per_seed": [{**scores, "rmse": rmse + s} for s in seeds]}
+
+    runs = [rec("cv", k, "tcn", "physics", 10, 11.0, [0, 1]) for k in range(3)]
+    runs += [rec("cv", k, "similarity", "hi", 10, 10.5, []) for k in range(3)]
+    runs += [rec("cv", k, "tcn", "data-driven", 20, 9.0, [0, 1]) for k in range(3)]
+    runs += [rec("test", 0, "similarity", "hi", 10, 4.0, []),
+             rec("test", 0, "tcn", "data-driven", 20, 9.0, [0, 1])]
+    assert hf.chosen_on_cv(runs) == ("similarity", "hi", 10)
+    hf.report(runs, tmp_path, tmp_path / "runs.jsonl")
+    table = (tmp_path / "health.md").read_text()
+    assert "| similarity hi (window 10) (chosen) | 10.50 | - | 4.00 |" in table
+    assert "| tcn data-driven (window 20) | 9.00 | 9.50 ± 0.71 | 9.00 |" in table
