@@ -185,6 +185,27 @@ def test_constant_columns_are_dropped_and_recorded(tmp_path):
         fit(df, meta, TrainConfig(**{**cfg.__dict__, "inputs": "farB"}))
 
 
+def test_the_scaler_of_a_training_run_reads_its_training_units_only():
+    """Per-condition standardisation (and min-max) fitted inside training: validation,
+    conformal and held-out units never reach its statistics. Their sensors moved by a huge
+    amount leave the trained model's scaler unchanged."""
+    from prognostics.training import prepare
+
+    df = _conditions_table(units=tuple(range(1, 13)))
+    meta = {"dev_units": list(range(1, 11)), "test_units": [11, 12]}
+    for normalise in ("condition", "minmax"):
+        cfg = TrainConfig(model="fnn", inputs="alt,Mach,TRA,T30,Nc", normalise=normalise,
+                          val_units=(9,), conformal_units=(10,), validation="units",
+                          device="cpu")
+        base = prepare(df, meta, cfg).scaler.to_dict()
+        moved = df.copy()
+        far = moved["unit"].isin([9, 10, 11, 12])
+        moved.loc[far, ["T30", "Nc"]] *= 50.0
+        assert prepare(moved, meta, cfg).scaler.to_dict() == base, normalise
+        moved.loc[moved["unit"] == 1, ["T30", "Nc"]] *= 50.0  # a training unit: it moves
+        assert prepare(moved, meta, cfg).scaler.to_dict() != base, normalise
+
+
 def test_per_condition_standardisation_helps_where_conditions_dominate():
     """With condition levels 100x the wear signal, min-max scaling hides the wear; the
     per-condition scaler exposes it (validation loss of the same tiny FNN, same seed)."""
