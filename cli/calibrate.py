@@ -150,6 +150,7 @@ def run(
     from calibration.consistency import with_measured_noise
     from calibration.unit_check import fleet_warnings
     from engine_model.channels import XS_NAMES
+    from engine_model.datasets import read_columns
 
     with user_errors(output=out), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnobservableWarning)
@@ -178,8 +179,6 @@ def run(
                                           if issubclass(w.category, UnobservableWarning)}),
                                  *res.warnings]))
     nonconverged = sum(v["n_nonconverged"] for v in res.units.values())
-    from engine_model.datasets import read_columns
-
     in_data = set(read_columns(data))
     absent = [c for c in XS_NAMES if c not in res.sensors and c not in in_data]
     # in the data but not used: not physical (C-MAPSS's Ps30), constant, or not asked for

@@ -101,9 +101,14 @@ class CliError(Exception):
 
 
 def console(stderr: bool = False):
+    """The rich console of the commands' text output. In a pipe or a file its lines are not
+    folded at 80 columns (a message stays one line, for grep); in a terminal they fold at its
+    width."""
     from rich.console import Console
 
-    return Console(stderr=stderr, highlight=False)
+    c = Console(stderr=stderr, highlight=False)
+    c.soft_wrap = not c.is_terminal
+    return c
 
 
 def wide_console(table):

@@ -145,6 +145,7 @@ def train(
            "dropped_constant": list(rul.info.get("dropped_constant", [])),
            "batch_size": rul.config.batch_size, "epochs": rul.config.epochs,
            "patience": rul.config.patience, "validation": rul.config.validation,
+           "units": rul.info.get("units"),
            "members": [{"seed": m.seed, "best_epoch": m.best_epoch, "epochs_run": len(m.history),
                         "val_loss": m.history[m.best_epoch - 1]["val_loss"],
                         "train_loss": m.history[m.best_epoch - 1]["train_loss"]}
@@ -159,7 +160,10 @@ def train(
     c.print(f"{rep['model'].upper()} on {len(rep['columns'])} inputs ({rep['inputs']}), window "
             f"{rep['window']}: {rep['parameters']:,} trainable parameters; batch "
             f"{rep['batch_size']}, at most {rep['epochs']} epochs, patience {rep['patience']}, "
-            f"validation on {rep['validation']}")
+            f"validation on {rep['validation']}"
+            + (f" {', '.join(map(str, rep['units']['validation']))}"
+               if rep["validation"] == "units" and (rep["units"] or {}).get("validation")
+               else ""))
     if rep["dropped_constant"]:
         c.print(f"dropped constant input(s): {', '.join(rep['dropped_constant'])}")
     for m in rep["members"]:

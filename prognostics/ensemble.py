@@ -184,7 +184,9 @@ class RulModel:
                  source: str = "table", progress: Callable[[int, int], None] | None = None
                  ) -> tuple[dict, pd.DataFrame]:
         """Metrics of :func:`metrics.evaluate_predictions` on ``units`` and the predictions
-        (``progress`` as in :meth:`predict`)."""
+        (``progress`` as in :meth:`predict`). Warns when a unit evaluated was one of the
+        model's own training, validation or conformal units (``info["units"]``, recorded by
+        :func:`fit` and the manifest), whose error is not a test error."""
         if TARGET not in df.columns:
             raise InputError(f"{source}: no {TARGET} column to evaluate against")
         rows = df[df["unit"].isin([int(u) for u in units])] if units is not None else df

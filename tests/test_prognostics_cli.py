@@ -95,6 +95,11 @@ def test_train_prints_the_parameter_count_and_a_progress_bar(runner, features_pa
     r = ok(run(runner, "train", features_parquet, "--model", "fnn", "--inputs", "data-driven",
                "--epochs", "2", "--device", "cpu", "--out", tmp_path / "fnn"))
     assert "FNN on 20 inputs (data-driven), window 1: 94,701 trainable parameters" in r.stdout
+    # which units validated (whole units by default), as the model records them
+    from prognostics.checkpoint import load_model
+
+    held = load_model(tmp_path / "fnn").info["units"]["validation"]
+    assert f"validation on units {', '.join(map(str, held))}" in r.stdout
     assert (tmp_path / "fnn" / "model.json").is_file()
     # the bar (stderr) shows the running training and validation loss of every epoch
     assert "fnn data-driven seed 0 epoch 2" in r.stderr and " val " in r.stderr
