@@ -428,6 +428,15 @@ def test_read_and_write_dataset_dispatch(tmp_path, fleet):
     assert_frame_equal(read_dataset(sniffed)[0], read_dataset(h5)[0])
     with pytest.raises(InputError, match="unknown format 'csv'"):
         write_dataset(fleet, tmp_path / "f.csv", META, format="csv")
+    # a C-MAPSS text file given where a dataset is read: the error says how to import it
+    text = tmp_path / "train_FD001.txt"
+    text.write_text("1 1 -0.0007 -0.0004 100.0 518.67 641.82  \n")
+    with pytest.raises(InputError, match="unknown format\\) \\(a C-MAPSS text file\\? import "
+                       "it first: hyprog data import-cmapss\\)"):
+        read_dataset(text)
+    text.write_bytes(b"PAR2 not a dataset")
+    with pytest.raises(InputError, match="unknown format\\)$"):
+        read_dataset(text)
 
 
 def test_summarize_counts_on_a_constructed_table():

@@ -50,7 +50,11 @@ def detect_format(path: Path) -> str:
         return "h5"
     if head.startswith(PARQUET_MAGIC):
         return "parquet"
-    raise InputError(f"{path}: not a parquet dataset or an N-CMAPSS h5 file (unknown format)")
+    hint = ""
+    if head[:1].isdigit() or head[:1] in (b" ", b"-"):  # a text file of numbers: C-MAPSS?
+        hint = " (a C-MAPSS text file? import it first: hyprog data import-cmapss)"
+    raise InputError(f"{path}: not a parquet dataset or an N-CMAPSS h5 file (unknown "
+                     f"format){hint}")
 
 
 def output_format(path: str | os.PathLike, format: str | None = None,
