@@ -283,7 +283,7 @@ def fleet_warnings(warnings: list[str], units: dict) -> list[str]:
     """A fleet calibration's warnings as a reader gets them: ``warnings`` without the
     per-unit bound lines, then one line per parameter and bound over the fleet
     (:func:`summarise_bound_hits`; ``units`` as there). What ``hyprog calibrate`` prints
-    and ``hyprog pipeline`` reports (every unit's lines stay in the per-unit records)."""
+    (every unit's lines stay in its ``--json`` report) and ``hyprog pipeline`` reports."""
     per_unit = {w for v in units.values() for w in v.get("warnings", []) if w.endswith(AT_BOUND)}
     return [w for w in warnings if w not in per_unit] + summarise_bound_hits(units)
 

@@ -191,11 +191,13 @@ class RulModel:
             raise InputError(f"{source}: no {TARGET} column to evaluate against")
         rows = df[df["unit"].isin([int(u) for u in units])] if units is not None else df
         check_table(rows, [], source, target=True)  # the truth: finite, not negative
-        used = {int(u): role for role, us in (self.info.get("units") or {}).items()
-                for u in us}
+        used: dict[int, set] = {}
+        for role, us in (self.info.get("units") or {}).items():
+            for u in us:  # a unit can have two roles (validation on flights)
+                used.setdefault(int(u), set()).add(role)
         seen = sorted({int(u) for u in rows["unit"].unique()} & set(used))
         if seen:
-            roles = ", ".join(sorted({used[u] for u in seen}))
+            roles = ", ".join(sorted(set().union(*(used[u] for u in seen))))
             warnings.warn(f"{source}: unit(s) {', '.join(map(str, seen[:10]))}"
                           f"{' ...' if len(seen) > 10 else ''} were used to train this model "
                           f"({roles}): their error is not a test error", UserWarning,

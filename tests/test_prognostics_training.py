@@ -310,6 +310,8 @@ def test_evaluating_a_unit_used_in_training_warns(trained, tmp_path):
     and evaluates without the warning."""
     import warnings
 
+    from tests.conftest import synthetic_features
+
     m, path, df = trained
     back = load_model(path)
     assert back.info["units"] == m.info["units"]
@@ -323,6 +325,15 @@ def test_evaluating_a_unit_used_in_training_warns(trained, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         back.evaluate(df, held)  # the test units: no warning
+    # validation on flights: a unit both trains and validates, and the warning names both
+    df2, meta2 = synthetic_features()
+    flights = fit(df2, meta2, TrainConfig(model="fnn", inputs="data-driven", epochs=1,
+                                          validation="flights", **TINY))
+    both = sorted(set(flights.info["units"]["training"])
+                  & set(flights.info["units"]["validation"]))
+    assert both
+    with pytest.warns(UserWarning, match=r"\(training, validation\)"):
+        flights.evaluate(df2, both[:1])
     d = _copy(path, tmp_path)
     resign_manifest(d, drop=("units",))
     old = load_model(d)

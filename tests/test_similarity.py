@@ -41,6 +41,23 @@ def test_a_unit_of_the_library_is_found_again_at_its_own_rul():
     np.testing.assert_allclose(pred.loc[late, "RUL_pred"], unit3.loc[late, "RUL"], atol=1e-6)
 
 
+def test_votes_are_weighted_by_the_kernel_of_the_match():
+    """Two library units, flat at 0.9 and 0.8: a unit at 0.86 for k flights matches each at
+    its mean squared difference d (0.0016 and 0.0036), and the prediction is the kernel's
+    weighted mean of their RUL votes, w_i = exp(-k (d_i - min d) / (4 sigma^2))."""
+    flat = lambda level, life: (np.full(life, level), np.arange(life - 1, -1, -1.0))  # noqa: E731
+    sigma2, k = 1e-4, 4
+    model = SimilarityRul((flat(0.9, 10), flat(0.8, 20)), sigma2=sigma2, window=k)
+    pred = model.predict_unit(np.full(k, 0.86))[-1]
+    d = np.array([0.04 ** 2, 0.06 ** 2])
+    w = np.exp(-k * (d - d.min()) / (4 * sigma2))
+    # every window of a flat unit matches equally: the first (argmin), RUL at its last flight
+    votes = np.array([10 - k, 20 - k], float)
+    assert pred == pytest.approx(np.sum(w * votes) / np.sum(w), rel=1e-12)
+    assert votes[0] < pred < votes[1]  # neither winner-take-all nor an unweighted mean
+    assert pred != pytest.approx(votes.mean())
+
+
 def test_the_noise_is_estimated_from_the_library(library):
     model = SimilarityRul.fit(library, window=5)
     assert 0.5 * 0.01 ** 2 < model.sigma2 < 2.0 * 0.01 ** 2
@@ -84,3 +101,12 @@ def test_bad_input_is_refused(library):
     nan.loc[3, "HI_hat"] = np.nan
     with pytest.raises(InputError, match="HI_hat is not finite"):
         SimilarityRul.fit(nan)
+    nan = library.copy()
+    nan.loc[3, "RUL"] = np.nan
+    with pytest.raises(InputError, match="RUL is not finite"):
+        SimilarityRul.fit(nan)
+    model = SimilarityRul.fit(library)
+    with pytest.raises(InputError, match="several rows for one unit and cycle"):
+        model.predict(pd.concat([library, library]))  # a sample table, not flights
+    with pytest.raises(InputError, match="no flights"):
+        model.predict(library.iloc[:0])

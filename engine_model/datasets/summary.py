@@ -55,8 +55,9 @@ def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | None = None) -> di
     cycles = by_unit["cycle"].nunique()
     eol = by_unit["cycle"].max()
     if "RUL" in df.columns:  # a unit cut before failure (a test unit): its last cycle + RUL
-        last = df.loc[by_unit["cycle"].idxmax()].set_index("unit")
-        eol = eol + last["RUL"].reindex(eol.index).fillna(0).round().astype(np.int64)
+        last = (df[["unit", "cycle", "RUL"]].sort_values(["unit", "cycle"], kind="stable")
+                .groupby("unit", sort=True)["RUL"].last())
+        eol = eol + last.reindex(eol.index).fillna(0).round().astype(np.int64)
     onset = (df.loc[df["hs"] == 0].groupby("unit")["cycle"].min() if "hs" in df.columns
              else pd.Series(dtype=np.int64))
     classes = by_unit["Fc"].unique() if "Fc" in df.columns else pd.Series(dtype=object)
