@@ -216,7 +216,9 @@ FAR_FRACTION = 0.01
 def _warn_far_outside(x: np.ndarray, scaler, source: str) -> None:
     """Warn when min-max scaled inputs lie more than one training range beyond it in more
     than 1 % of the rows (an FD001 model given FD002's six conditions predicted 0 for every
-    row without a word). Standardised inputs (per condition) have no range to compare with."""
+    row without a word). Standardised inputs (per condition) have no range to compare with,
+    and a column constant in training scales to 0 whatever it reads (the training drops such
+    columns by default, ``drop_constant``)."""
     if not isinstance(scaler, MinMaxScaler) or not len(x):
         return
     frac = np.mean(np.abs(x) > FAR_OUTSIDE, axis=0)

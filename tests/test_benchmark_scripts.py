@@ -103,6 +103,30 @@ def test_health_features_chooses_on_every_fold_among_the_hybrids():
     assert hf.chosen_on_cv(cv("trend", "physics", 20, [3, 3])) is None
 
 
+def test_health_features_scores_the_similarity_predictor_on_held_out_units():
+    """library_predict: fitted on the development flights only, scored on the held-out
+    units' samples like the networks, no seeds."""
+    import numpy as np
+    import pandas as pd
+    import pytest
+
+    from prognostics.similarity import SimilarityRul
+
+    hf = load_script(BENCHMARKS / "health_features.py", "health_features_bench")
+    rng = np.random.default_rng(0)
+    flights = pd.concat([pd.DataFrame({
+        "unit": u, "cycle": np.arange(1, life + 1), "RUL": life - np.arange(1, life + 1),
+        "hs": (np.arange(1, life + 1) < life // 2).astype(int),
+        "HI_hat": 1 - (np.arange(1, life + 1) / life) ** 2 + 0.01 * rng.standard_normal(life)})
+        for u, life in ((1, 40), (2, 50), (3, 60), (4, 45))], ignore_index=True)
+    dev, held = flights[flights["unit"] != 4], flights[flights["unit"] == 4]
+    res = hf.library_predict(dev, held, 5, held[["unit", "cycle", "RUL", "hs"]])
+    assert res["per_seed"] == []
+    pred = SimilarityRul.fit(dev, 5).predict(held)
+    err = pred["RUL"] - pred["RUL_pred"]
+    assert res["ensemble"]["rmse"] == pytest.approx(float(np.sqrt(np.mean(err ** 2))))
+
+
 def test_health_features_reports_a_model_without_seeds(tmp_path):
     """The similarity predictor (no network, no seeds) is a candidate like the networks: it
     can be chosen, and its test row has no per-seed column."""

@@ -351,6 +351,13 @@ def test_bound_warnings_are_summarised_per_parameter_over_the_fleet():
         f"HPT_eff_mod_hat is at its bound -0.15 in 1 of 9 units (unit 8; 1 of their 150 "
         f"samples): {AT_BOUND}"]
     assert summarise_bound_hits({1: {"samples": 5, "at_bound": []}}) == []
+    # what calibrate prints and the pipeline reports: other warnings kept, a unit's own bound
+    # lines replaced by the fleet's
+    from calibration.unit_check import fleet_warnings
+
+    units[1]["warnings"] = [f"unit 1: LPT_flow_mod_hat is at its bound 0.05 ...: {AT_BOUND}"]
+    said = ["health parameter(s) LPT_flow_mod cannot be observed", *units[1]["warnings"]]
+    assert fleet_warnings(said, units) == [said[0], *lines]
 
 
 def test_a_library_caller_is_warned_once_for_the_fleet(small):
