@@ -87,7 +87,10 @@ class HyprogGroup(TyperGroup):
             else:
                 ctx = getattr(e, "ctx", None)
                 where = f"{ctx.command_path}: " if ctx is not None else ""
-                typer.echo(error_line(where + e.format_message()), err=True)
+                # (typer validates a Literal choice through pydantic, whose message starts
+                # "Value error, ": the reader needs the value and the choices, not the layer)
+                typer.echo(error_line(where + e.format_message().replace("Value error, ", "")),
+                           err=True)
                 rv = EXIT_USAGE
         except Abort:
             if not TERMINATED:

@@ -115,7 +115,7 @@ def train(
 
     with user_errors():  # the options alone, before any file is read: errors name the option
         if ensemble < 1:
-            raise CliError(f"--ensemble {ensemble}: expected >= 1")
+            raise CliError(f"--ensemble must be >= 1, got {ensemble}")
         by_seed = val_units is not None and val_units.strip().lower() == "seed"
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []

@@ -61,6 +61,7 @@ def test_choices_are_listed_and_refused_otherwise():
     res = CliRunner().invoke(app, ["train", "features", "--out", "m", "--model", "lstm"])
     assert res.exit_code == 2
     assert "'lstm' is not one of 'fnn', 'cnn', 'dcnn', 'tcn', 'trend'" in res.stderr
+    assert "Value error" not in res.stderr  # the validation layer's wording stays out
 
 
 def test_completion_is_installable_and_completes():

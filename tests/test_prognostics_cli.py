@@ -186,7 +186,7 @@ def test_missing_file(runner, tmp_path, model_dir):
 
 def test_ensemble_zero_and_a_failed_training_leave_nothing(runner, features_parquet, tmp_path):
     assert_user_error(run(runner, "train", features_parquet, "--ensemble", "0", *FAST,
-                          "--out", tmp_path / "m"), "--ensemble 0")
+                          "--out", tmp_path / "m"), "--ensemble must be >= 1, got 0")
     assert_user_error(run(runner, "train", features_parquet, "--units", "1,99", *FAST,
                           "--out", tmp_path / "m"), "99")
     assert_user_error(run(runner, "train", features_parquet, "--inputs", "hybrid+htBleed",
