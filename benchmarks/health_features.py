@@ -33,9 +33,12 @@ Every run is cached in ``--work``/``runs.jsonl`` (default ``out/health``; keyed 
 fingerprint, the stage, the units and the resolved configuration), so an interrupted benchmark
 resumes. The table goes to ``--results`` (``health.md``, ``runs.csv``, ``runs.jsonl.gz``: the
 cache, gzipped), by default ``--work`` itself; the committed files are written only when asked,
-``--results benchmarks/results/health``. ``--report`` writes them from the cache without
-training (from the committed cache: ``mkdir -p out/health && zcat
-benchmarks/results/health/runs.jsonl.gz > out/health/runs.jsonl`` first).
+``--results benchmarks/results/health`` (2026-11-26, before the similarity candidates) and
+``--results benchmarks/results/health/rerun-2026-11-29`` (the whole protocol rerun with them,
+into a fresh ``--work``: the features' fingerprint had changed, so the first cache's keys
+could not be reused). ``--report`` writes them from the cache without training (from a
+committed cache: ``mkdir -p out/health && zcat benchmarks/results/health/runs.jsonl.gz >
+out/health/runs.jsonl`` first).
 """
 
 from __future__ import annotations
