@@ -52,6 +52,7 @@ import numpy as np
 import pandas as pd
 
 from engine_model.channels import THETA_NAMES
+from engine_model.datasets.summary import end_of_life
 from engine_model.validation import InputError
 
 from .baseline import theta_per_cycle
@@ -66,9 +67,11 @@ MARGINS = dict(zip(("SmFan", "SmLPC", "SmHPC", "EGT"), HEALTH_STEMS[1:], strict=
 
 
 def unit_lives(flights: pd.DataFrame) -> pd.Series:
-    """End of life of every unit of a flight table: its last cycle plus that cycle's RUL."""
-    last = flights.groupby("unit", sort=True)[["cycle", TARGET]].last()
-    return last["cycle"] + last[TARGET]
+    """End of life of every unit of a flight table: its last cycle plus that cycle's RUL
+    (:func:`engine_model.datasets.summary.end_of_life`)."""
+    if TARGET not in flights.columns:
+        raise InputError(f"a unit's life needs the {TARGET} column")
+    return end_of_life(flights)
 
 
 def one_per_cycle(df: pd.DataFrame) -> bool:

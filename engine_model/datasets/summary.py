@@ -38,6 +38,17 @@ def _split_label(unit: int, dev: set[int], test: set[int], any_listed: bool) -> 
     return None if any_listed else "dev"
 
 
+def end_of_life(df: pd.DataFrame) -> pd.Series:
+    """Per unit (in unit order): its last cycle plus the ``RUL`` at that cycle, the cycle at
+    which it fails (a test unit is cut before failure); the last cycle alone without a
+    ``RUL`` column. One definition for ``data info``, the reports and the prognostics'
+    lives (:func:`prognostics.flights.unit_lives`)."""
+    cols = ["unit", "cycle", *(["RUL"] if "RUL" in df.columns else [])]
+    last = (df[cols].sort_values(["unit", "cycle"], kind="stable")
+            .groupby("unit", sort=True).last())
+    return last["cycle"] + last["RUL"] if "RUL" in last.columns else last["cycle"]
+
+
 def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """A JSON-serialisable summary of a fleet table (for ``hyprog data info``).
 
@@ -53,11 +64,7 @@ def summarize(df: pd.DataFrame, metadata: Mapping[str, Any] | None = None) -> di
     by_unit = df.groupby("unit", sort=True)
     rows = by_unit.size()
     cycles = by_unit["cycle"].nunique()
-    eol = by_unit["cycle"].max()
-    if "RUL" in df.columns:  # a unit cut before failure (a test unit): its last cycle + RUL
-        last = (df[["unit", "cycle", "RUL"]].sort_values(["unit", "cycle"], kind="stable")
-                .groupby("unit", sort=True)["RUL"].last())
-        eol = eol + last.reindex(eol.index).fillna(0).round().astype(np.int64)
+    eol = end_of_life(df).fillna(by_unit["cycle"].max()).round().astype(np.int64)
     onset = (df.loc[df["hs"] == 0].groupby("unit")["cycle"].min() if "hs" in df.columns
              else pd.Series(dtype=np.int64))
     classes = by_unit["Fc"].unique() if "Fc" in df.columns else pd.Series(dtype=object)
