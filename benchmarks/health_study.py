@@ -17,7 +17,11 @@ The predictors are fixed here, before any fleet of the study is seen: flight mod
 information: ``data-driven`` (the flights' means of ``w`` and ``x_s``), ``physics`` (the
 health coordinates of θ̂ and θ̂ relative to early life: the choice of ``ds02``'s development
 folds) and ``health`` (the health coordinates alone: the best on ``ds02``'s test units, named
-here for that reason and reported as such).
+here for that reason and reported as such). Added 2026-11-29, after the networks' runs and
+before any fleet was scored with it: ``similarity`` (:mod:`prognostics.similarity`, window 10
+flights, the choice of ``ds02``'s development folds; no network and no seeds), the predictor
+that question asks of every fleet: is the similarity predictor ahead of the HI lookup floor
+beyond ``ds02``?
 
 Report: per ``n``, the mean over fleets of each predictor's test RMSE, and the hybrid-minus-
 data-driven difference per fleet with its 95 % confidence interval over fleets (Student t);
@@ -26,7 +30,11 @@ the curve of the hybrid-minus-data-driven difference against ``n`` (``study.png`
 The tables and the figure go to ``--results`` (default: ``--work``, ``out/study``); the
 committed ones are written only when asked, ``--results benchmarks/results/health_study``.
 ``--report`` trains nothing; without a cache it rewrites the tables from the committed
-``benchmarks/results/health_study/study_runs.csv``.
+``benchmarks/results/health_study/study_runs.csv``. ``--predictors`` picks the predictors
+that run (the floors always do: they are cheap). ``--merge-committed`` adds the committed
+table's rows that the cache lacks, for each fleet and ``n`` whose floors the cache
+reproduces (the floors are deterministic in the data and the units, so equal floors mean the
+same fleet); a fleet and ``n`` whose floors differ are refused, naming them.
 Every run is cached in ``--work``/``runs.jsonl`` (fleet, n, predictor, data fingerprint); an
 interrupted study resumes, and ``--fleets`` / ``--sizes`` pick what runs. ``--rate`` (default
 0.05 Hz, half the paper experiment's, to halve the calibration) is the sampling rate of the
@@ -47,7 +55,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from common import hyprog, parse_range, run_key  # noqa: E402
-from health_features import KEY_LENGTH, scores, train_predict  # noqa: E402
+from health_features import KEY_LENGTH, library_predict, scores, train_predict  # noqa: E402
 from run_cache import append_run, read_runs  # noqa: E402
 
 # (the project's modules are imported where they are used: ``--help`` answers at once)
@@ -58,8 +66,10 @@ COMMITTED = ROOT / "benchmarks" / "results" / "health_study"
 SIZES = (3, 6, 12, 24)
 PREDICTORS = {"data-driven": ("tcn", "data-driven", 20), "physics": ("tcn", "physics", 20),
               "health": ("tcn", "health", 20)}
+#: predictors with no network (model, window): fitted once, no seeds
+LIBRARY = {"similarity": ("similarity", 10)}
 SEEDS = (0, 1, 2)
-HYBRIDS = ("physics", "health")
+HYBRIDS = ("physics", "health", "similarity")
 
 
 def fleet_features(work: Path, seed: int, rate: float) -> Path:
@@ -81,7 +91,8 @@ def fleet_features(work: Path, seed: int, rate: float) -> Path:
     return features
 
 
-def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict) -> None:
+def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict,
+              predictors) -> None:
     from engine_model.datasets.dispatch import read_dataset
     from engine_model.datasets.fingerprint import table_fingerprint
     from prognostics.baseline import health_effects
@@ -107,7 +118,24 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
                    "floors": {k: scores(to_samples(p, samples)) for k, p in fl.items()}}
             append_run(cache, rec)
             done[key] = rec
+        for name, (model, window) in LIBRARY.items():
+            if name not in predictors:
+                continue
+            key = run_key({"data": fp, "n": n, "units": units,
+                           "library": {"model": model, "window": window}}, KEY_LENGTH)
+            if key in done:
+                continue
+            res = library_predict(flights[flights["unit"].isin(units)], test_fl, window,
+                                  samples)
+            rec = {"key": key, "kind": "model", "fleet": seed, "n": n, "units": units,
+                   "predictor": name, **res}
+            append_run(cache, rec)
+            done[key] = rec
+            print(f"[{time.strftime('%H:%M:%S')}] fleet {seed} n {n} {name}: RMSE "
+                  f"{res['ensemble']['rmse']:.2f}", flush=True)
         for name, (model, inputs, window) in PREDICTORS.items():
+            if name not in predictors:
+                continue
             cfg = TrainConfig(model=model, inputs=inputs, window=window, device="cpu")
             key = run_key({"data": fp, "n": n, "units": units, "seeds": list(SEEDS),
                            "config": cfg.to_dict()}, KEY_LENGTH)
@@ -120,6 +148,31 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
             done[key] = rec
             print(f"[{time.strftime('%H:%M:%S')}] fleet {seed} n {n} {name}: RMSE "
                   f"{res['ensemble']['rmse']:.2f} ({res['seconds']:.0f} s)", flush=True)
+
+
+def merge_committed(t: pd.DataFrame, committed: pd.DataFrame) -> pd.DataFrame:
+    """``t`` (the cache's :func:`runs_table`) with the rows of ``committed`` it lacks, for each
+    (fleet, n) whose floors both hold and agree (to the committed table's 4 digits); a
+    (fleet, n) of the cache whose floors disagree stops the merge, naming it."""
+    floors = [f"floor: {k}" for k in ("life", "hi-lookup")]
+    here = t[t["predictor"].isin(floors)].set_index(["fleet", "n", "predictor"])["rmse"]
+    there = committed[committed["predictor"].isin(floors)].set_index(
+        ["fleet", "n", "predictor"])["rmse"]
+    same = set()
+    for (fleet, n), g in here.groupby(level=[0, 1]):
+        both = g.index.intersection(there.index)
+        if len(both) < len(floors):
+            continue
+        if not np.allclose(g.loc[both], there.loc[both], rtol=1e-3, atol=0.0):
+            raise SystemExit(f"error: fleet {fleet}, n {n}: the cache's floors "
+                             f"{g.loc[both].round(2).tolist()} differ from the committed "
+                             f"{there.loc[both].round(2).tolist()}: not the same fleet")
+        same.add((fleet, n))
+    have = set(zip(t["fleet"], t["n"], t["predictor"], strict=True))
+    extra = committed[[(f, n) in same and (f, n, p) not in have for f, n, p in
+                       zip(committed["fleet"], committed["n"], committed["predictor"],
+                           strict=True)]]
+    return pd.concat([t, extra], ignore_index=True)
 
 
 def t_interval(x: np.ndarray) -> tuple[float, float, float]:
@@ -246,21 +299,32 @@ def main(argv=None) -> int:
                     help="where the tables and the figure go (default: --work; the "
                     "committed ones: benchmarks/results/health_study)")
     ap.add_argument("--report", action="store_true", help="write the tables from the cache")
+    names = [*PREDICTORS, *LIBRARY]
+    ap.add_argument("--predictors", default=",".join(names),
+                    help=f"the predictors that run, of {', '.join(names)} (the floors always)")
+    ap.add_argument("--merge-committed", action="store_true",
+                    help="add the committed table's rows the cache lacks, for the fleets and "
+                    "sizes whose floors the cache reproduces")
     a = ap.parse_args(argv)
     a.work.mkdir(parents=True, exist_ok=True)
     results = a.work if a.results is None else a.results
+    predictors = [p.strip() for p in a.predictors.split(",") if p.strip()]
+    unknown = sorted(set(predictors) - set(names))
+    if unknown:
+        ap.error(f"--predictors: unknown {', '.join(unknown)} (known: {', '.join(names)})")
     cache = a.work / "runs.jsonl"
     if not a.report:
         done = {r["key"]: r for r in read_runs(cache)}
         sizes = [int(s) for s in a.sizes.split(",")]
         for seed in parse_range(a.fleets):
-            run_fleet(a.work, seed, a.rate, sizes, cache, done)
-            print(report(runs_table(read_runs(cache)), results), flush=True)
+            run_fleet(a.work, seed, a.rate, sizes, cache, done, predictors)
     t = runs_table(read_runs(cache))
     committed = COMMITTED / "study_runs.csv"
     if t.empty and a.report and committed.is_file():  # no cache here: the committed table
         print(f"no runs in {cache}: the tables from {committed}", file=sys.stderr)
         t = pd.read_csv(committed)
+    elif a.merge_committed:
+        t = merge_committed(t, pd.read_csv(committed))
     print(report(t, results))
     return 0
 

@@ -150,3 +150,32 @@ def test_health_features_reports_a_model_without_seeds(tmp_path):
     table = (tmp_path / "health.md").read_text()
     assert "| similarity hi (window 10) (chosen) | 10.50 | - | 4.00 |" in table
     assert "| tcn data-driven (window 20) | 9.00 | 9.50 ± 0.71 | 9.00 |" in table
+
+
+def test_health_study_merges_committed_rows_only_for_the_same_fleet():
+    """``--merge-committed``: the committed rows the cache lacks join it for a fleet and size
+    whose floors the cache reproduces (to the table's 4 digits); one whose floors differ stops
+    the merge, naming the fleet; a row the cache has is never replaced."""
+    import pandas as pd
+    import pytest
+
+    hs = load_script(BENCHMARKS / "health_study.py", "health_study_bench")
+
+    def rows(fleet, n, life, lookup, **models):
+        return [{"fleet": fleet, "n": n, "predictor": "floor: life", "rmse": life},
+                {"fleet": fleet, "n": n, "predictor": "floor: hi-lookup", "rmse": lookup},
+                *({"fleet": fleet, "n": n, "predictor": p, "rmse": r}
+                  for p, r in models.items())]
+
+    committed = pd.DataFrame(rows(0, 3, 14.46, 16.36, physics=10.0, health=11.0)
+                             + rows(1, 3, 12.0, 11.0, physics=9.0))
+    cache = pd.DataFrame(rows(0, 3, 14.4612, 16.3598, similarity=8.0, health=12.0))
+    merged = hs.merge_committed(cache, committed).set_index(["fleet", "n", "predictor"])
+    assert merged.loc[(0, 3, "physics"), "rmse"] == 10.0     # added: same floors
+    assert merged.loc[(0, 3, "health"), "rmse"] == 12.0      # the cache's, not replaced
+    assert merged.loc[(0, 3, "similarity"), "rmse"] == 8.0
+    assert (1, 3, "physics") not in merged.index              # that fleet never ran here
+    assert len(merged) == 5
+    other = pd.DataFrame(rows(0, 3, 14.9, 16.36))
+    with pytest.raises(SystemExit, match="fleet 0, n 3"):
+        hs.merge_committed(other, committed)
