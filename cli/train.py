@@ -18,9 +18,16 @@ from cli.common import (
     parse_units,
     user_errors,
 )
-from prognostics.choices import MODEL_KINDS, NORMALISATIONS, SCHEDULES, VALIDATIONS
+from prognostics.choices import (
+    LIBRARY_MODELS,
+    MODEL_KINDS,
+    NORMALISATIONS,
+    SCHEDULES,
+    VALIDATIONS,
+)
 
-INPUTS_HELP = ("Input set (data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
+INPUTS_HELP = ("Input set (default hybrid; HI_hat for similarity: one health-index column) "
+               "(data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
                "trend, or any model on a table with one row per cycle such as C-MAPSS, also "
                "physics, hybrid-health, physics-mode, health-mode), groups joined by '+' "
                "(w, xs, xs_hat, xv, xv_hat, theta_hat, theta, cmapss; health, theta_rel, "
@@ -42,8 +49,10 @@ def train(
         "--model", help="fnn or cnn (the paper's), dcnn (Li, Ding & Sun 2018's deeper CNN "
         "with dropout; window 30), or the flight models: tcn (a temporal CNN over the last "
         "20 flights' means and health coordinates) and trend (the same, learning a correction "
-        "to the physics trend of the health index).")] = "cnn",
-    inputs: Annotated[str, typer.Option("--inputs", help=INPUTS_HELP)] = "hybrid",
+        "to the physics trend of the health index); or similarity (no network: the training "
+        "units' health-index trajectories as a library, the last 10 flights matched to it; "
+        "Wang et al. 2008).")] = "cnn",
+    inputs: Annotated[str | None, typer.Option("--inputs", help=INPUTS_HELP)] = None,
     units: Annotated[str | None, typer.Option(
         "--units",
         help=f"Development units to train on {UNIT_LIST} (default: the metadata's "
@@ -97,8 +106,9 @@ def train(
     quiet: Quiet = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print a JSON report only.")] = False,
 ):
-    """Train a RUL model (the paper's FNN or 1-D CNN, Li et al.'s DCNN, or a flight model) on
-    a feature table and save it (weights, scaler, inputs, interval) to the directory --out.
+    """Train a RUL model (the paper's FNN or 1-D CNN, Li et al.'s DCNN, a flight model, or the
+    similarity library) on a feature table and save it (weights or library, scaler, inputs,
+    interval) to the directory --out.
     An existing --out is replaced only when it is a model hyprog wrote that holds nothing else
     (or with --overwrite); never the FEATURES it reads.
 
@@ -106,16 +116,22 @@ def train(
     Examples:
       hyprog train features.parquet --model cnn --inputs hybrid --out models/cnn
       hyprog train fd002-features --model dcnn --max-rul 125 --out models/fd002   (C-MAPSS)
+      hyprog train features.parquet --model similarity --out models/similarity
     """
     from engine_model.datasets import read_dataset
     from engine_model.runtime import output_lock
     from prognostics.checkpoint import check_model_target, save_model
     from prognostics.ensemble import fit
-    from prognostics.train_config import TrainConfig
+    from prognostics.train_config import DEFAULT_INPUTS, TrainConfig
 
+    if inputs is None:
+        inputs = DEFAULT_INPUTS.get(model, "hybrid")
     with user_errors():  # the options alone, before any file is read: errors name the option
         if ensemble < 1:
             raise CliError(f"--ensemble must be >= 1, got {ensemble}")
+        if model in LIBRARY_MODELS and ensemble > 1:
+            raise CliError(f"--ensemble {ensemble}: the {model} model has no network and "
+                           "nothing random; one is the same as many")
         by_seed = val_units is not None and val_units.strip().lower() == "seed"
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
@@ -141,7 +157,7 @@ def train(
             save_model(rul, out, overwrite, (features,))  # atomic: a killed run leaves none
     rep = {"out": str(out), "model": rul.config.model, "inputs": rul.config.inputs,
            "columns": list(rul.columns), "window": rul.window, "max_rul": rul.config.max_rul,
-           "parameters": rul.members[0].parameters,
+           "parameters": rul.parameters,
            "dropped_constant": list(rul.info.get("dropped_constant", [])),
            "batch_size": rul.config.batch_size, "epochs": rul.config.epochs,
            "patience": rul.config.patience, "validation": rul.config.validation,
@@ -157,6 +173,23 @@ def train(
     if quiet:  # --quiet: the result is in --out, nothing more is printed
         return
     c = console()
+    if rul.library is not None:
+        lib = rul.library
+        c.print(f"{rep['model'].upper()} on {rep['columns'][0]}, window {rep['window']} flights: "
+                f"a library of {len(lib.library)} unit(s), "
+                f"{sum(len(h) for h, _ in lib.library):,} flights (bandwidth σ² "
+                f"{lib.sigma2:.3g}); no network, no validation")
+    else:
+        _print_networks(c, rep)
+    if rul.conformal is not None:
+        c.print(f"conformal interval ±{rul.conformal.quantile:.3g} cycles at level "
+                f"{1 - rul.conformal.alpha:.2f} from {rul.conformal.n_scores:,} samples of "
+                f"unit(s) {', '.join(map(str, rul.conformal.units))}")
+    c.print(f"wrote {out}")
+
+
+def _print_networks(c, rep: dict) -> None:
+    """The console lines of a trained network ensemble."""
     c.print(f"{rep['model'].upper()} on {len(rep['columns'])} inputs ({rep['inputs']}), window "
             f"{rep['window']}: {rep['parameters']:,} trainable parameters; batch "
             f"{rep['batch_size']}, at most {rep['epochs']} epochs, patience {rep['patience']}, "
@@ -170,8 +203,3 @@ def train(
         val = "-" if m["val_loss"] is None else f"{m['val_loss']:.4g}"
         c.print(f"seed {m['seed']}: best epoch {m['best_epoch']} of {m['epochs_run']}, "
                 f"train MSE {m['train_loss']:.4g}, validation MSE {val}")
-    if rul.conformal is not None:
-        c.print(f"conformal interval ±{rul.conformal.quantile:.3g} cycles at level "
-                f"{1 - rul.conformal.alpha:.2f} from {rul.conformal.n_scores:,} samples of "
-                f"unit(s) {', '.join(map(str, rul.conformal.units))}")
-    c.print(f"wrote {out}")

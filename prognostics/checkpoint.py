@@ -4,6 +4,7 @@ Layout of a model directory::
 
     MODEL_DIR/model.json               manifest (below)
     MODEL_DIR/member-<seed>.safetensors  the weights of one network (tensors only)
+    MODEL_DIR/library.safetensors      the similarity model's library (no members)
 
 ``model.json`` holds ``format`` (``"hyprog-prognostics"``), ``format_version``,
 ``hyprog_version``, the training ``config`` (model, inputs, window, stride, ``max_rul``,
@@ -13,8 +14,11 @@ thread count: what the bits of a run depend on besides seed and data, :mod:`.tra
 in a model written before it was recorded), ``units`` (the development units of each role in
 training, ``training`` / ``validation`` / ``conformal``: evaluating one of them warns; null
 in a model written before they were recorded) and per member its file, ``sha256``, seed, best
-epoch, parameter count and training history; then ``sha256``: the SHA-256 of the canonical
-JSON (sorted keys, no spaces) of everything else in the manifest.
+epoch, parameter count and training history; ``library`` (null for a network): the
+similarity model's file (arrays ``hi``, ``rul``, ``lengths``:
+:meth:`.similarity.SimilarityRul.to_arrays`), its ``sha256``, bandwidth ``sigma2`` and
+``column``; then ``sha256``: the SHA-256 of the canonical JSON (sorted keys, no spaces) of
+everything else in the manifest.
 
 Loading refuses, with an :class:`InputError` naming the file:
 
@@ -68,7 +72,7 @@ from engine_model.validation import InputError
 
 from .conformal import SplitConformal
 from .scaling import scaler_from_dict
-from .train_config import TrainConfig
+from .train_config import LIBRARY_MODELS, TrainConfig
 from .training import Member
 
 if TYPE_CHECKING:  # ensemble imports this module
@@ -77,6 +81,7 @@ if TYPE_CHECKING:  # ensemble imports this module
 FORMAT = "hyprog-prognostics"
 FORMAT_VERSION = 2  # 2: size-rule config fields, per-condition scaler, dropped columns
 MANIFEST = "model.json"
+LIBRARY_FILE = "library.safetensors"
 
 
 def sha256_bytes(data: bytes) -> str:
@@ -99,6 +104,15 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
         members.append({"file": name, "sha256": sha256_bytes(blob), "seed": m.seed,
                         "best_epoch": m.best_epoch, "parameters": m.parameters,
                         "history": m.history})
+    library = None
+    if model.library is not None:
+        import torch
+
+        blob = st_save({k: torch.from_numpy(v) for k, v in model.library.to_arrays().items()},
+                       metadata={"format": FORMAT})
+        files[LIBRARY_FILE] = blob
+        library = {"file": LIBRARY_FILE, "sha256": sha256_bytes(blob),
+                   "sigma2": model.library.sigma2, "column": model.library.column}
     body = {"format": FORMAT, "format_version": FORMAT_VERSION,
             "hyprog_version": model.info.get("hyprog_version", hyprog_version()),
             "config": model.config.to_dict(), "columns": list(model.columns),
@@ -108,7 +122,7 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
             "units": model.info.get("units"),
             "conformal": None if model.conformal is None else model.conformal.to_dict(),
             "trained_with": model.info.get("trained_with"),
-            "members": members}
+            "members": members, "library": library}
     body["sha256"] = sha256_bytes(_canonical(body))
     return body, files
 
@@ -130,10 +144,13 @@ def is_model_directory(path: Path) -> bool:
 
 def model_layout(path: Path) -> list[str]:
     """The files hyprog wrote in the model directory ``path``: the manifest and the weights
-    files it names."""
-    members = (_manifest_of(path) or {}).get("members")
+    (or library) files it names."""
+    body = _manifest_of(path) or {}
+    members = body.get("members")
     names = [m.get("file") for m in members if isinstance(m, dict)] \
         if isinstance(members, list) else []
+    if isinstance(body.get("library"), dict):
+        names.append(body["library"].get("file"))
     return [MANIFEST, *(n for n in names if isinstance(n, str) and n and Path(n).name == n)]
 
 
@@ -185,22 +202,41 @@ def _read_manifest(directory: Path) -> dict:
     return body
 
 
-def _load_member(directory: Path, entry) -> Member:
-    """One member of the manifest: its weights file checked against the recorded SHA-256."""
+def _load_tensors(directory: Path, entry, what: str, record: str) -> tuple[dict, Path]:
+    """The tensors of the manifest's ``record`` (``member``, ``library``) ``entry``, whose
+    file holds ``what`` (``weights``, ``library``), checked against its SHA-256."""
     if not isinstance(entry, dict):
-        raise InputError(f"{directory / MANIFEST}: malformed member record")
+        raise InputError(f"{directory / MANIFEST}: malformed {record} record")
     name = str(entry.get("file", ""))
     file = directory / name
     if not name or Path(name).name != name or not file.is_file():
-        raise InputError(f"{file}: weights file missing")
+        raise InputError(f"{file}: {what} file missing")
     blob = file.read_bytes()
     if sha256_bytes(blob) != entry.get("sha256"):
-        raise InputError(f"{file}: SHA-256 mismatch: the weights were modified or do not "
+        raise InputError(f"{file}: SHA-256 mismatch: the {what} file was modified or does not "
                          "belong to this model; refusing to load")
     try:
-        state = st_load(blob)
+        return st_load(blob), file
     except (SafetensorError, ValueError) as exc:
         raise InputError(f"{file}: unreadable safetensors file ({exc})") from None
+
+
+def _load_library(directory: Path, entry, window: int):
+    """The similarity model's library of the manifest's record ``entry``."""
+    from .similarity import SimilarityRul
+
+    arrays, file = _load_tensors(directory, entry, "library", "library")
+    try:
+        return SimilarityRul.from_arrays({k: v.numpy() for k, v in arrays.items()},
+                                         float(entry["sigma2"]), window, str(entry["column"]),
+                                         source=str(file))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{directory / MANIFEST}: malformed library record ({exc})") from None
+
+
+def _load_member(directory: Path, entry) -> Member:
+    """One member of the manifest: its weights file checked against the recorded SHA-256."""
+    state, _ = _load_tensors(directory, entry, "weights", "member")
     try:
         return Member(int(entry["seed"]), state, list(entry.get("history", [])),
                       int(entry.get("best_epoch", 0)), int(entry.get("parameters", 0)))
@@ -257,17 +293,26 @@ def load_model(path: str | os.PathLike) -> RulModel:
         conformal = None if body["conformal"] is None else \
             SplitConformal.from_dict(body["conformal"])
         entries = list(body["members"])
+        library = body.get("library")
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise InputError(f"{p / MANIFEST}: malformed manifest ({e})") from None
     if scaler.columns != columns:
         raise InputError(f"{p / MANIFEST}: the scaler's columns differ from the inputs")
-    if not entries:
+    is_library = config.model in LIBRARY_MODELS
+    if is_library != (library is not None) or (is_library and entries):
+        raise InputError(f"{p / MANIFEST}: a {config.model} model with "
+                         f"{'a' if library is not None else 'no'} library and {len(entries)} "
+                         "network(s): the manifest does not describe this model")
+    if not is_library and not entries:
         raise InputError(f"{p / MANIFEST}: no trained members")
     members = [_load_member(p, e) for e in entries]
-    _check_shapes(p / MANIFEST, config, len(columns), members)
+    if members:
+        _check_shapes(p / MANIFEST, config, len(columns), members)
     model = RulModel(config, columns, scaler, members, conformal,
                      info={"hyprog_version": version, "path": str(p),
                            "dropped_constant": dropped, "health_effects": effects,
-                           "units": used, "trained_with": body.get("trained_with")})
+                           "units": used, "trained_with": body.get("trained_with")},
+                     library=None if library is None else
+                     _load_library(p, library, config.window))
     model.networks()  # weights must fit the recorded network
     return model

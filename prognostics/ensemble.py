@@ -14,7 +14,8 @@ around ``ŷ``, present when the model was trained with conformal units:
 
 A flight model (``tcn``, ``trend``) predicts once per flight, at its end, from the table's
 flight table (:mod:`.flights`); on a sample table every sample of the flight carries that
-prediction.
+prediction. The ``similarity`` model has no network and no members: its ``library``
+(:class:`.similarity.SimilarityRul`) predicts each flight in the same way.
 
 Prediction on a table uses the model's recorded columns (a missing one is an error naming
 it), its scaler, and windows over each unit as a whole (:mod:`.windows`): a sample gets a
@@ -42,17 +43,26 @@ from torch import nn
 
 from engine_model.validation import InputError
 
-from .baseline import trend_per_flight
+from .baseline import health_effects, trend_per_flight
 from .conformal import SplitConformal
-from .features import TARGET, check_table, sort_table
+from .features import TARGET, check_table, resolve_inputs, sort_table, unobservable_columns
 from .flights import one_per_cycle, to_samples
 from .metrics import evaluate_predictions
 from .models import build_model
-from .scaling import MinMaxScaler, Scaler
-from .splits import CONFORMAL, TRAIN, VALIDATION, segments
-from .train_config import TrainConfig
+from .scaling import MinMaxScaler, Scaler, fit_scaler
+from .similarity import SimilarityRul
+from .splits import (
+    CONFORMAL,
+    TRAIN,
+    VALIDATION,
+    assign_roles,
+    development_and_test_units,
+    segments,
+)
+from .train_config import LIBRARY_MODELS, TrainConfig
 from .training import (
     Member,
+    check_held_units,
     deterministic,
     predict_windows,
     prepare,
@@ -66,7 +76,8 @@ from .windows import make_windows
 
 @dataclass
 class RulModel:
-    """Members (one per seed), input columns, scaler, optional conformal interval."""
+    """Members (one per seed), input columns, scaler, optional conformal interval; or, for
+    the ``similarity`` model, no members and its ``library``."""
 
     config: TrainConfig
     columns: tuple[str, ...]
@@ -74,10 +85,16 @@ class RulModel:
     members: list[Member]
     conformal: SplitConformal | None = None
     info: dict = field(default_factory=dict)  # e.g. the hyprog version it was trained with
+    library: SimilarityRul | None = None
 
     @property
     def window(self) -> int:
         return int(self.config.window)
+
+    @property
+    def parameters(self) -> int:
+        """Trainable parameters of one member (0 for a library model: nothing is trained)."""
+        return self.members[0].parameters if self.members else 0
 
     def still_improving(self) -> list[str]:
         """A line for each member whose training ran every epoch allowed while its
@@ -89,6 +106,8 @@ class RulModel:
         about to end: nothing is said (on FD003 with the defaults 88 of 225 runs reached the
         cap of 250, 16 with their best epoch in the last 25). Without validation nothing
         stops early, and nothing is said."""
+        if not self.members:  # a library model trains nothing
+            return []
         epochs, patience = int(self.config.epochs), int(self.config.patience)
         return [f"seed {m.seed}: training used all {epochs} epochs and the validation loss "
                 f"was still improving (best epoch {m.best_epoch}): a larger --epochs may "
@@ -134,6 +153,8 @@ class RulModel:
         check_table(frame, self.columns, source, target=False)
         x = self.scaler.transform_frame(frame, source=source)
         _warn_far_outside(x, self.scaler, source)
+        if self.library is not None:
+            return self._library_predict(frame, samples, progress)
         unit = frame["unit"].to_numpy()
         a, b = segments(unit, np.zeros(len(unit), np.int8))
         short = np.flatnonzero(b - a < self.window)
@@ -177,6 +198,19 @@ class RulModel:
         if self.conformal is not None:
             out["RUL_lower"], out["RUL_upper"] = self.conformal.interval(out["RUL_pred"])
         if cfg.per_flight and not one_per_cycle(samples):
+            out = to_samples(out, samples, [c for c in out.columns if c.startswith("RUL_")])
+        return out
+
+    def _library_predict(self, flights: pd.DataFrame, samples: pd.DataFrame,
+                         progress: Callable[[int, int], None] | None) -> pd.DataFrame:
+        """:meth:`predict` for the library model: every flight of ``flights``, capped and
+        with the interval like a network's, carried to the samples of ``samples``."""
+        out = self.library.predict(flights, self.config.max_rul)
+        if progress is not None:
+            progress(len(out), len(out))
+        if self.conformal is not None:
+            out["RUL_lower"], out["RUL_upper"] = self.conformal.interval(out["RUL_pred"])
+        if not one_per_cycle(samples):
             out = to_samples(out, samples, [c for c in out.columns if c.startswith("RUL_")])
         return out
 
@@ -249,7 +283,11 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     model has one set of columns and one scaler; they differ by their initialisation and
     batch order. An ensemble whose members each draw their own validation units (as
     ``benchmarks/cmapss.py`` cross-validates) is one ``fit`` per seed, with
-    ``replace(config, seed=s)``, and the mean of their predictions."""
+    ``replace(config, seed=s)``, and the mean of their predictions.
+
+    The ``similarity`` model trains nothing: :func:`fit_library` (``seeds`` do not apply)."""
+    if config.model in LIBRARY_MODELS:
+        return fit_library(df, metadata, config, source)
     prep = prepare(df, metadata, config, source)
     cfg = prep.config
     device = resolve_device(cfg.device)
@@ -282,4 +320,63 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         y_true = prep.frame[TARGET].to_numpy(np.float64)[conf.rows]
         model.conformal = SplitConformal.calibrate(y_true, preds, cfg.alpha,
                                                    sorted(set(cfg.conformal_units)))
+    return model
+
+
+def fit_library(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
+                source: str = "table") -> RulModel:
+    """The ``similarity`` model (:mod:`.similarity`) of ``df``'s development units: the
+    flight table of the units (:func:`.training.rows_for`, with the health coordinates of the
+    engine model θ̂ was calibrated with), one health-index column (``config.inputs``), the
+    library of every development unit but the conformal ones (their RUL capped at
+    ``max_rul``), a min-max scaler of that column on the library's flights (for the warning
+    on inputs far outside the training range), and, with conformal units, the split-conformal
+    interval of the library's predictions on them. Nothing is optimised, so there are no
+    validation units (refused when named) and no seeds."""
+    cfg = config.resolved()
+    if TARGET not in df.columns:
+        raise InputError(f"{source}: no {TARGET} column to train on")
+    if cfg.val_units or cfg.validation != "auto":
+        raise InputError(f"{source}: the similarity model optimises nothing and stops nothing "
+                         "early: it takes no validation units (every development unit joins "
+                         "its library)")
+    present = np.unique(df["unit"].to_numpy()).tolist()
+    dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
+    check_held_units(cfg, dev, test, source)
+    effects = health_effects(metadata)
+    flights = rows_for(cfg, sort_table(df[df["unit"].isin(dev)]), effects, source)
+    columns = resolve_inputs(cfg.inputs, list(flights.columns), source,
+                             unobservable_columns(flights))
+    if len(columns) != 1:
+        raise InputError(f"{source}: the similarity model reads one health index (inputs "
+                         f"HI_hat, or HI for the true θ); inputs {cfg.inputs!r} are "
+                         f"{len(columns)} columns ({', '.join(columns[:6])}"
+                         f"{' ...' if len(columns) > 6 else ''})")
+    check_table(flights, columns, source)
+    roles = assign_roles(flights["unit"].to_numpy(), flights["cycle"].to_numpy(), dev,
+                         validation="flights", val_fraction=0.0,
+                         conformal_units=cfg.conformal_units, source=source)
+    in_library = roles == TRAIN
+    library_units = sorted({int(u) for u in flights["unit"].to_numpy()[in_library]})
+    conformal = sorted({int(u) for u in flights["unit"].to_numpy()[roles == CONFORMAL]})
+    lib_flights = flights[in_library]
+    if cfg.max_rul is not None:
+        lib_flights = lib_flights.assign(**{TARGET: np.minimum(lib_flights[TARGET],
+                                                               cfg.max_rul)})
+    longest = int(lib_flights.groupby("unit").size().max())
+    if cfg.window > longest:
+        raise InputError(f"{source}: window {cfg.window} is longer than the longest library "
+                         f"unit ({longest} flights)")
+    library = SimilarityRul.fit(lib_flights, cfg.window, columns[0])
+    scaler = fit_scaler("minmax", flights, columns, in_library, source)
+    units = {"training": library_units, **({"conformal": conformal} if conformal else {})}
+    model = RulModel(cfg, tuple(columns), scaler, [], library=library,
+                     info={"units": units, "dropped_constant": [],
+                           "health_effects": list(effects)})
+    if conformal:
+        held = flights[flights["unit"].isin(conformal)]
+        pred = library.predict(held, cfg.max_rul)
+        model.conformal = SplitConformal.calibrate(pred[TARGET].to_numpy(np.float64),
+                                                   pred["RUL_pred"].to_numpy(np.float64),
+                                                   cfg.alpha, conformal)
     return model

@@ -40,7 +40,7 @@ from engine_model.validation import InputError
 from .checkpoint import load_model, save_model
 from .ensemble import RulModel, fit
 from .evaluation import Evaluation
-from .train_config import TrainConfig
+from .train_config import DEFAULT_INPUTS, TrainConfig
 
 
 def _frame_and_metadata(data) -> tuple[pd.DataFrame, dict, str]:
@@ -69,6 +69,8 @@ class RulEstimator:
                              f"{', '.join(sorted(known))}")
         if ensemble < 1:
             raise InputError(f"RulEstimator: ensemble must be >= 1, got {ensemble}")
+        if "inputs" not in options and options.get("model") in DEFAULT_INPUTS:
+            options["inputs"] = DEFAULT_INPUTS[options["model"]]
         self.config = TrainConfig(**options)
         self.config.resolved()  # bad values now, not after training
         self.ensemble = ensemble
@@ -130,6 +132,6 @@ class RulEstimator:
         model = load_model(path)
         est = cls.__new__(cls)
         est.config = replace(model.config)
-        est.ensemble = len(model.members)
+        est.ensemble = max(1, len(model.members))  # a library model: one, no network
         est.model_ = model
         return est

@@ -29,6 +29,12 @@ says where the engine is, the fleet's histories say how long such an engine last
 Every prediction of flight ``n`` reads flights ``1 .. n`` of its unit only (causal); it is
 issued at the flight's end, like the flight models' (:mod:`.flights`). Library units
 shorter than ``k`` flights do not vote.
+
+As a trained model (``hyprog train --model similarity``, :func:`.ensemble.fit`) the library
+is the training units' flights with their RUL capped like every model's targets,
+``min(RUL, max_rul)`` (so a vote, and the weighted mean of the votes, never exceeds the
+cap); it is stored as arrays (:meth:`SimilarityRul.to_arrays`) in the model directory
+(:mod:`.checkpoint`).
 """
 
 from __future__ import annotations
@@ -91,6 +97,37 @@ class SimilarityRul:
             raise InputError(f"similarity: {column} does not vary along the library's units")
         return cls(lib, sigma2, int(window), column)
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The library as flat arrays: ``hi`` and ``rul`` (every unit's flights, one unit
+        after another) and ``lengths`` (flights per unit); :meth:`from_arrays` inverts it."""
+        return {"hi": np.concatenate([h for h, _ in self.library]),
+                "rul": np.concatenate([r for _, r in self.library]),
+                "lengths": np.array([len(h) for h, _ in self.library], np.int64)}
+
+    @classmethod
+    def from_arrays(cls, arrays, sigma2: float, window: int, column: str = HI_COLUMN,
+                    source: str = "similarity library") -> SimilarityRul:
+        """The predictor of :meth:`to_arrays`' arrays, checked (a stored library that does
+        not describe units is refused, naming ``source``)."""
+        try:
+            hi, rul = (np.asarray(arrays[k], float) for k in ("hi", "rul"))
+            lengths = np.asarray(arrays["lengths"])
+        except KeyError as e:
+            raise InputError(f"{source}: no {e.args[0]!r} array") from None
+        if (hi.ndim != 1 or rul.shape != hi.shape or lengths.ndim != 1 or not len(lengths)
+                or not np.issubdtype(lengths.dtype, np.integer) or (lengths < 1).any()
+                or int(lengths.sum()) != len(hi)):
+            raise InputError(f"{source}: the arrays do not describe a library (hi {hi.shape}, "
+                             f"rul {rul.shape}, lengths {lengths.shape})")
+        if not (np.isfinite(hi).all() and np.isfinite(rul).all()):
+            raise InputError(f"{source}: the library is not finite")
+        if not (float(sigma2) > 0 and np.isfinite(sigma2)) or int(window) != window \
+                or window < 1:
+            raise InputError(f"{source}: bandwidth {sigma2!r} or window {window!r} invalid")
+        cut = np.cumsum(lengths)[:-1]
+        lib = tuple(zip(np.split(hi, cut), np.split(rul, cut), strict=True))
+        return cls(lib, float(sigma2), int(window), column)
+
     def predict_unit(self, hi) -> np.ndarray:
         """The prediction at every flight of one unit whose health index per flight is
         ``hi`` (in flight order)."""
@@ -117,9 +154,9 @@ class SimilarityRul:
 
     def predict(self, flights: pd.DataFrame, max_rul: float | None = None) -> pd.DataFrame:
         """Per flight of ``flights`` (a flight table with the health index): ``unit``,
-        ``cycle``, ``RUL`` and ``hs`` where present, and ``RUL_pred`` (capped at ``max_rul``
+        ``cycle``, ``t``, ``RUL`` and ``hs`` where present, and ``RUL_pred`` (capped at ``max_rul``
         like capped targets when given)."""
-        keep = [c for c in ("unit", "cycle", TARGET, "hs") if c in flights.columns]
+        keep = [c for c in ("unit", "cycle", "t", TARGET, "hs") if c in flights.columns]
         frames = []
         for _, g in _series(flights, self.column, "similarity").items():
             f = g[keep].copy()

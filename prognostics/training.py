@@ -171,6 +171,19 @@ def rows_for(config: TrainConfig, frame: pd.DataFrame, effects: Sequence[str],
     return flight_frame(frame, source, effects)
 
 
+def check_held_units(cfg: TrainConfig, dev: Sequence[int], test: Sequence[int],
+                     source: str = "table") -> None:
+    """Validation and conformal units of ``cfg`` are not test units (a test unit is only
+    ever evaluated)."""
+    for what, given in (("validation", cfg.val_units or ()),
+                        ("conformal", cfg.conformal_units)):
+        held = sorted(set(int(u) for u in given) & set(test))
+        if held:
+            raise InputError(f"{source}: {what} unit(s) {', '.join(map(str, held))} are test "
+                             "units (a test unit is only ever evaluated; choose development "
+                             f"units: {', '.join(map(str, sorted(dev)))})")
+
+
 def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
             source: str = "table") -> Prepared:
     """Steps 1-3 of the module docstring."""
@@ -193,13 +206,7 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
         rows = "flights" if cfg.per_flight else "rows"
         raise InputError(f"{source}: window {cfg.window} is longer than the longest development "
                          f"unit ({longest} {rows})")
-    for what, given in (("validation", cfg.val_units or ()),
-                        ("conformal", cfg.conformal_units)):
-        held = sorted(set(int(u) for u in given) & set(test))
-        if held:
-            raise InputError(f"{source}: {what} unit(s) {', '.join(map(str, held))} are test "
-                             "units (a test unit is only ever evaluated; choose development "
-                             f"units: {', '.join(map(str, sorted(dev)))})")
+    check_held_units(cfg, dev, test, source)
     n_fit = len(set(dev) - set(cfg.conformal_units))
     cfg = replace(cfg, validation=cfg.validation_for(n_fit))
     roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,

@@ -56,11 +56,11 @@ def test_help_is_plain_text_with_an_example(path):
 
 def test_choices_are_listed_and_refused_otherwise():
     text = CliRunner().invoke(app, ["train", "--help"], terminal_width=100).stdout
-    assert "--model <fnn|cnn|dcnn|tcn|trend>" in text, text
+    assert "--model <fnn|cnn|dcnn|tcn|trend|similarity>" in text, text
     assert "<auto|cpu|cuda>" in text, text
     res = CliRunner().invoke(app, ["train", "features", "--out", "m", "--model", "lstm"])
     assert res.exit_code == 2
-    assert "'lstm' is not one of 'fnn', 'cnn', 'dcnn', 'tcn', 'trend'" in res.stderr
+    assert "'lstm' is not one of 'fnn', 'cnn', 'dcnn', 'tcn', 'trend', 'similarity'" in res.stderr
     assert "Value error" not in res.stderr  # the validation layer's wording stays out
 
 
@@ -83,7 +83,8 @@ def test_completion_is_installable_and_completes():
         return r.stdout.split()
 
     assert complete("hyprog tr", 1) == ["train"]
-    assert complete("hyprog train f --model ", 4) == ["fnn", "cnn", "dcnn", "tcn", "trend"]
+    assert complete("hyprog train f --model ", 4) == ["fnn", "cnn", "dcnn", "tcn", "trend",
+                                                     "similarity"]
 
 
 @pytest.mark.parametrize("group", ["data", "experiment", "model", "calibrate"])

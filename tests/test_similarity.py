@@ -110,3 +110,127 @@ def test_bad_input_is_refused(library):
         model.predict(pd.concat([library, library]))  # a sample table, not flights
     with pytest.raises(InputError, match="no flights"):
         model.predict(library.iloc[:0])
+
+
+# --- the trained model: hyprog train --model similarity -------------------------------------
+
+def _linear_hi(monkeypatch):
+    """The health index of test_flights' stand-in (no engine model)."""
+    import prognostics.baseline as baseline
+    from tests.test_flights import LinearHI
+
+    monkeypatch.setattr(baseline, "engine_health_index", lambda effects=(): LinearHI())
+
+
+def test_the_trained_model_is_the_library_of_its_flights_capped_and_round_trips(
+        make_features, monkeypatch, tmp_path):
+    """``fit`` with ``model="similarity"``: the library is the development units' flight
+    table (RUL capped at max_rul), the predictions are those of
+    :class:`SimilarityRul` on the test units' flights, carried by every sample, causal, and
+    the model saved and loaded predicts the same, bit for bit."""
+    from prognostics.checkpoint import load_model, save_model
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+    from prognostics.training import flight_frame
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    m = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5, max_rul=20.0))
+    assert m.members == [] and m.parameters == 0 and m.columns == ("HI_hat",)
+    assert m.info["units"] == {"training": meta["dev_units"]}
+    fl = flight_frame(df)
+    dev = fl[fl.unit.isin(meta["dev_units"])].assign(RUL=lambda f: f["RUL"].clip(upper=20.0))
+    want = SimilarityRul.fit(dev, 5).predict(fl[fl.unit.isin(meta["test_units"])], 20.0)
+    test = df[df.unit.isin(meta["test_units"])]
+    pred = m.predict(test)
+    assert len(pred) == len(test) and pred["RUL_pred"].max() <= 20.0
+    per_flight = pred.groupby(["unit", "cycle"])["RUL_pred"].first().to_numpy()
+    np.testing.assert_array_equal(per_flight, want["RUL_pred"].to_numpy())
+    cut = m.predict(test[(test.unit != 5) | (test.cycle <= 9)])  # causal
+    np.testing.assert_array_equal(cut[cut.unit == 5]["RUL_pred"],
+                                  pred[(pred.unit == 5) & (pred.cycle <= 9)]["RUL_pred"])
+    save_model(m, tmp_path / "m")
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["library.safetensors",
+                                                                  "model.json"]
+    again = load_model(tmp_path / "m")
+    pd.testing.assert_frame_equal(again.predict(test), pred)
+    save_model(again, tmp_path / "m")  # a library model directory is one hyprog may replace
+    from prognostics import RulEstimator
+
+    assert RulEstimator(model="similarity").config.inputs == "HI_hat"  # its default
+    est = RulEstimator.load(tmp_path / "m")
+    assert est.ensemble == 1 and est.model_.library is not None
+
+
+def test_the_trained_model_takes_conformal_units_and_refuses_what_does_not_apply(
+        make_features, monkeypatch):
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    m = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5,
+                                  conformal_units=(4,), alpha=0.2))
+    assert m.info["units"] == {"training": [1, 2, 3], "conformal": [4]}
+    assert m.conformal is not None and list(m.conformal.units) == [4]
+    pred = m.predict(df[df.unit == 5])
+    assert (pred["RUL_upper"] - pred["RUL_pred"]).round(9).nunique() == 1
+    with pytest.raises(InputError, match="one health index .*8 columns|one health index"):
+        fit(df, meta, TrainConfig(model="similarity", inputs="physics"))
+    with pytest.raises(InputError, match="no validation units"):
+        fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", val_units=(2,)))
+    with pytest.raises(InputError, match="conformal unit.* 5 are test"):
+        fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", conformal_units=(5,)))
+    with pytest.raises(InputError, match="window 99 is longer than the longest library unit"):
+        fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=99))
+
+
+def test_a_stored_library_that_was_edited_is_refused(make_features, monkeypatch, tmp_path):
+    """The library file is hashed like a network's weights, and arrays that do not describe
+    units are refused, naming the file."""
+    from prognostics.checkpoint import load_model, save_model
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    save_model(fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5)),
+               tmp_path / "m")
+    f = tmp_path / "m" / "library.safetensors"
+    blob = bytearray(f.read_bytes())
+    blob[-20] ^= 0xFF  # one byte of the arrays changed
+    f.write_bytes(bytes(blob))
+    with pytest.raises(InputError, match="library.safetensors: SHA-256 mismatch"):
+        load_model(tmp_path / "m")
+    with pytest.raises(InputError, match="lib: the arrays do not describe a library"):
+        SimilarityRul.from_arrays({"hi": np.zeros(5), "rul": np.zeros(5),
+                                   "lengths": np.array([2, 2])}, 1.0, 3, source="lib")
+    lib = SimilarityRul.from_arrays({"hi": np.arange(5.0), "rul": np.arange(5.0)[::-1],
+                                     "lengths": np.array([2, 3])}, 0.5, 2)
+    np.testing.assert_array_equal(lib.to_arrays()["lengths"], [2, 3])
+
+
+def test_hyprog_train_similarity_and_evaluate(make_features, monkeypatch, tmp_path):
+    """Through the CLI: --model similarity reads HI_hat by default, reports its library, and
+    evaluate scores it; --ensemble 2 is refused (nothing random)."""
+    import json
+
+    from cli.main import app
+    from engine_model.datasets import write_parquet
+    from tests.cli_checks import cli_runner
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    table = write_parquet(df, tmp_path / "f.parquet", meta)
+    runner = cli_runner()
+    r = runner.invoke(app, ["train", str(table), "--model", "similarity", "--window", "5",
+                            "--out", str(tmp_path / "m")])
+    assert r.exit_code == 0, r.output
+    assert "SIMILARITY on HI_hat, window 5 flights: a library of 4 unit(s)" in r.stdout
+    r = runner.invoke(app, ["evaluate", str(tmp_path / "m"), str(table), "--json"])
+    assert r.exit_code == 0, r.output
+    assert set(json.loads(r.stdout)["samples"]["units"]) == {"5", "6"}
+    r = runner.invoke(app, ["train", str(table), "--model", "similarity", "--ensemble", "2",
+                            "--out", str(tmp_path / "m2")])
+    assert r.exit_code != 0 and "nothing random" in r.stderr
+    assert not (tmp_path / "m2").exists()

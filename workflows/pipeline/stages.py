@@ -356,7 +356,7 @@ def train(ctx: Context, folder: Path, feats: dict) -> dict:
             write_json(info, {"seconds": seconds})
         out[inputs] = {
             "model": ctx.rel(target), "seconds": seconds, "window": model.window,
-            "parameters": model.members[0].parameters,
+            "parameters": model.parameters,
             "members": [{"seed": m.seed, "best_epoch": m.best_epoch, "epochs_run": len(m.history),
                          "history": [{k: h[k] for k in ("epoch", "train_loss", "val_loss")}
                                      for h in m.history]} for m in model.members],
