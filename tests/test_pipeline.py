@@ -343,3 +343,24 @@ def test_a_test_unit_shorter_than_the_window_is_a_warning(tmp_path):
     said = json.loads(r.stdout)["warnings"]
     assert any("unit(s) 4 have fewer samples than the window (3000)" in w for w in said), said
     assert "Warning: data-driven: " in (out / "report.md").read_text()
+
+
+def test_the_similarity_model_runs_through_the_pipeline(tmp_path):
+    """A model that reads the flight table (here the similarity library on HI_hat) gets its
+    inputs from the flight table at the features stage (the sample table has no health
+    coordinates), and a model with no network has no training-curve figure."""
+    cfg = tmp_path / "p.toml"
+    cfg.write_text('[simulate]\npreset = "tiny"\n[data]\nunits = [3, 4]\n[discover]\n'
+                   'enabled = false\n[train]\nmodel = "similarity"\nwindow = 5\n'
+                   'inputs = ["HI_hat"]\n')
+    r = hyprog("pipeline", "--config", cfg, "--out", tmp_path / "out", "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert stages_of(r.stdout)["train"] == "done"
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["features"]["inputs"] == {"HI_hat": ["HI_hat"]}
+    assert (tmp_path / "out" / "figures" / "rul_HI_hat.png").is_file()
+    assert not (tmp_path / "out" / "figures" / "training.png").exists()
+    assert "no network: the library of the training units" in \
+        (tmp_path / "out" / "report.md").read_text()
+    assert rep["stages"]["evaluate"]["status"] == "done"

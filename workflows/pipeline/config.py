@@ -69,7 +69,9 @@ table            key                  meaning [default]
                  ``drift``            ``"mle"`` or a number [mle]
                  ``n_draws``          draws of the family-wise critical value [20000]
                  ``augment``          add what was found and recalibrate (``--augment``) [false]
-``train``        ``model``            ``cnn``, ``fnn`` or ``dcnn`` [cnn]
+``train``        ``model``            ``cnn``, ``fnn``, ``dcnn``, the flight models ``tcn``
+                                      and ``trend``, or ``similarity`` (no network; inputs
+                                      ``["HI_hat"]``) [cnn]
                  ``inputs``           input sets, each trained and evaluated
                                       [["data-driven", "hybrid"]]
                  ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]

@@ -262,9 +262,10 @@ def _rul_blocks(ev: dict, figs: dict, trained: dict) -> list:
         t = trained[inputs]
         best = ", ".join(f"seed {m['seed']}: best epoch {m['best_epoch']} of {m['epochs_run']}"
                          for m in t["members"])
+        what = f"{t['parameters']:,} parameters; {best}" if t["members"] else \
+            "no network: the library of the training units"
         out.append(("img", png, f"{inputs}: predicted (per-cycle mean, min-max band) vs true "
-                                f"RUL of the test units ({t['parameters']:,} parameters; "
-                                f"{best})"))
+                                f"RUL of the test units ({what})"))
     return out
 
 
@@ -316,8 +317,10 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
     rul_figs["error_by_rul"] = figs / "error_by_rul.png"
     plot_error_by_rul({k: e["metrics"]["error_by_rul"] for k, e in s["evaluate"].items()},
                       rul_figs["error_by_rul"])
-    curves = figs / "training.png"
-    plot_training_curves(_history(s["train"]), curves)
+    history = _history(s["train"])  # none for a library model (similarity): no figure
+    curves = figs / "training.png" if history else None
+    if curves is not None:
+        plot_training_curves(history, curves)
     disc = s.get("discover")
     disc_png = None
     if disc is not None:
@@ -337,7 +340,7 @@ def write(out: Path, config: dict, s: dict, timings: dict) -> dict:
               + _calibration_blocks(s["calibrate"], acc, theta_png, before, feats["effects"])
               + _discovery_blocks(disc, feats["effects"], disc_png)
               + _rul_blocks(s["evaluate"], rul_figs, s["train"])
-              + [("img", curves, "training and validation loss per epoch")]
+              + ([("img", curves, "training and validation loss per epoch")] if curves else [])
               + [("h", 2, "Timings"),
                  ("table", ["stage", "status", "seconds"],
                   [[k, v["status"], _f(v["seconds"], ".1f")] for k, v in timings.items()]),

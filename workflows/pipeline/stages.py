@@ -298,7 +298,6 @@ def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
              discovered: dict | None) -> dict:
     """The feature table to learn from, its split and the inputs of every input set."""
     from engine_model.datasets import read_columns, read_metadata
-    from prognostics.features import resolve_inputs
 
     specs = []
     if ctx.config["discover"]["augment"] and discovered and discovered["found"]:
@@ -312,9 +311,28 @@ def features(ctx: Context, folder: Path, data: Path, calibrated: dict,
     columns = read_columns(table)
     rows = unit_rows(table)
     split = split_units(list(rows), meta, ctx.config["data"], str(table))
-    inputs = {s: resolve_inputs(s, columns, str(table)) for s in ctx.config["train"]["inputs"]}
+    inputs = {s: _input_columns(ctx, table, meta, columns, s, split)
+              for s in ctx.config["train"]["inputs"]}
     return _round_trip({"table": ctx.rel(table), "effects": specs, "split": split,
                         "inputs": inputs, "rows": int(sum(rows.values()))})
+
+
+def _input_columns(ctx: Context, table: Path, meta: dict, columns: list[str], spec: str,
+                   split: dict) -> list[str]:
+    """The input columns of the input set ``spec``: the feature table's, or, for a model that
+    reads the flight table (a flight model, or health groups on one row per cycle), those
+    of the flight table of the first development unit (its columns are every unit's)."""
+    from prognostics.baseline import health_effects
+    from prognostics.features import resolve_inputs, sort_table, unobservable_columns
+    from prognostics.training import rows_for
+
+    cfg = train_config(ctx.config, spec, split)
+    if not cfg.reads_flights:
+        return resolve_inputs(spec, columns, str(table))
+    df, _ = _read(table, units=[split["dev"][0]])
+    flights = rows_for(cfg, sort_table(df), health_effects(meta), str(table))
+    return resolve_inputs(spec, list(flights.columns), str(table),
+                          unobservable_columns(flights))
 
 
 def unit_rows(table: Path) -> dict[int, int]:
