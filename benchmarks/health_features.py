@@ -59,8 +59,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from common import hyprog, run_key  # noqa: E402
 from run_cache import append_run, read_runs  # noqa: E402
 
-# (the project's modules, torch among them, are imported where they are used, so that
-# ``--help`` answers at once)
+# models without a network, fitted once on the development flights with no seeds (a module
+# with no imports); the project's other modules, torch among them, are imported where they
+# are used, so that ``--help`` answers at once
+from prognostics.choices import LIBRARY_MODELS  # noqa: E402
 
 #: (model, inputs, window); "truth" inputs (true θ) are an ablation, never chosen
 CANDIDATES = (
@@ -82,8 +84,6 @@ CANDIDATES = (
     ("similarity", "hi", 10),
     ("similarity", "hi", 20),
 )
-#: models without a network: fitted once on the development flights, no seeds
-LIBRARY_MODELS = ("similarity",)
 TRUTH_INPUTS = ("health_true",)
 FOLDS, FOLD_SEED = 3, 0
 UNIT_15 = 15

@@ -132,6 +132,9 @@ def train(
         if model in LIBRARY_MODELS and ensemble > 1:
             raise CliError(f"--ensemble {ensemble}: the {model} model has no network and "
                            "nothing random; one is the same as many")
+        if model in LIBRARY_MODELS and (validation != "auto" or val_units is not None):
+            raise CliError(f"--validation / --val-units: the {model} model optimises nothing "
+                           "and stops nothing early; every development unit joins its library")
         by_seed = val_units is not None and val_units.strip().lower() == "seed"
         vu = None if by_seed else parse_units(val_units, "--val-units")
         cu = parse_units(conformal_units, "--conformal-units") or []
@@ -167,6 +170,11 @@ def train(
                         "train_loss": m.history[m.best_epoch - 1]["train_loss"]}
                        for m in rul.members],
            "conformal": None if rul.conformal is None else rul.conformal.to_dict()}
+    if rul.library is not None:  # no network: no batches, epochs, patience or validation
+        rep.update(batch_size=None, epochs=None, patience=None, validation=None,
+                   library={"units": len(rul.library.library),
+                            "flights": sum(len(h) for h, _ in rul.library.library),
+                            "sigma2": rul.library.sigma2})
     warned = [*warned, *rul.still_improving()]
     if finish(rep, warned, as_json):
         return
@@ -174,11 +182,10 @@ def train(
         return
     c = console()
     if rul.library is not None:
-        lib = rul.library
+        lib = rep["library"]
         c.print(f"{rep['model'].upper()} on {rep['columns'][0]}, window {rep['window']} flights: "
-                f"a library of {len(lib.library)} unit(s), "
-                f"{sum(len(h) for h, _ in lib.library):,} flights (bandwidth σ² "
-                f"{lib.sigma2:.3g}); no network, no validation")
+                f"a library of {lib['units']} unit(s), {lib['flights']:,} flights (bandwidth "
+                f"σ² {lib['sigma2']:.3g}); no network, no validation")
     else:
         _print_networks(c, rep)
     if rul.conformal is not None:

@@ -16,9 +16,9 @@ training, ``training`` / ``validation`` / ``conformal``: evaluating one of them 
 in a model written before they were recorded) and per member its file, ``sha256``, seed, best
 epoch, parameter count and training history; ``library`` (null for a network): the
 similarity model's file (arrays ``hi``, ``rul``, ``lengths``:
-:meth:`.similarity.SimilarityRul.to_arrays`), its ``sha256``, bandwidth ``sigma2`` and
-``column``; then ``sha256``: the SHA-256 of the canonical JSON (sorted keys, no spaces) of
-everything else in the manifest.
+:meth:`.similarity.SimilarityRul.to_arrays`), its ``sha256`` and bandwidth ``sigma2`` (the
+library's health index is the model's one input column); then ``sha256``: the SHA-256 of
+the canonical JSON (sorted keys, no spaces) of everything else in the manifest.
 
 Loading refuses, with an :class:`InputError` naming the file:
 
@@ -28,7 +28,9 @@ Loading refuses, with an :class:`InputError` naming the file:
   whose SHA-256 is not the one recorded (tampered, swapped between models);
 - another ``format_version`` (the layout changed; retrain or use the hyprog that wrote it);
 - weights whose names or shapes do not fit the recorded network (checked on a network built
-  on PyTorch's ``meta`` device, before any memory is allocated for it).
+  on PyTorch's ``meta`` device, before any memory is allocated for it);
+- a library (the similarity model's) whose arrays do not describe units, a library on a
+  network's manifest or networks on a library model's.
 
 **What the hashes do not do.** The SHA-256 values are unkeyed checksums: they catch accidents
 (a truncated copy, a hand edit, weights swapped between models), not an adversary, who can
@@ -112,7 +114,7 @@ def _manifest(model) -> tuple[dict, dict[str, bytes]]:
                        metadata={"format": FORMAT})
         files[LIBRARY_FILE] = blob
         library = {"file": LIBRARY_FILE, "sha256": sha256_bytes(blob),
-                   "sigma2": model.library.sigma2, "column": model.library.column}
+                   "sigma2": model.library.sigma2}  # its column: the model's one input
     body = {"format": FORMAT, "format_version": FORMAT_VERSION,
             "hyprog_version": model.info.get("hyprog_version", hyprog_version()),
             "config": model.config.to_dict(), "columns": list(model.columns),
@@ -221,14 +223,14 @@ def _load_tensors(directory: Path, entry, what: str, record: str) -> tuple[dict,
         raise InputError(f"{file}: unreadable safetensors file ({exc})") from None
 
 
-def _load_library(directory: Path, entry, window: int):
+def _load_library(directory: Path, entry, window: int, column: str):
     """The similarity model's library of the manifest's record ``entry``."""
     from .similarity import SimilarityRul
 
     arrays, file = _load_tensors(directory, entry, "library", "library")
     try:
         return SimilarityRul.from_arrays({k: v.numpy() for k, v in arrays.items()},
-                                         float(entry["sigma2"]), window, str(entry["column"]),
+                                         float(entry["sigma2"]), window, column,
                                          source=str(file))
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{directory / MANIFEST}: malformed library record ({exc})") from None
@@ -299,10 +301,11 @@ def load_model(path: str | os.PathLike) -> RulModel:
     if scaler.columns != columns:
         raise InputError(f"{p / MANIFEST}: the scaler's columns differ from the inputs")
     is_library = config.model in LIBRARY_MODELS
-    if is_library != (library is not None) or (is_library and entries):
+    if is_library != (library is not None) or (is_library and (entries or len(columns) != 1)):
         raise InputError(f"{p / MANIFEST}: a {config.model} model with "
-                         f"{'a' if library is not None else 'no'} library and {len(entries)} "
-                         "network(s): the manifest does not describe this model")
+                         f"{'a' if library is not None else 'no'} library, {len(entries)} "
+                         f"network(s) and {len(columns)} input(s): the manifest does not "
+                         "describe this model")
     if not is_library and not entries:
         raise InputError(f"{p / MANIFEST}: no trained members")
     members = [_load_member(p, e) for e in entries]
@@ -313,6 +316,6 @@ def load_model(path: str | os.PathLike) -> RulModel:
                            "dropped_constant": dropped, "health_effects": effects,
                            "units": used, "trained_with": body.get("trained_with")},
                      library=None if library is None else
-                     _load_library(p, library, config.window))
+                     _load_library(p, library, config.window, columns[0]))
     model.networks()  # weights must fit the recorded network
     return model

@@ -43,9 +43,9 @@ from torch import nn
 
 from engine_model.validation import InputError
 
-from .baseline import health_effects, trend_per_flight
+from .baseline import trend_per_flight
 from .conformal import SplitConformal
-from .features import TARGET, check_table, resolve_inputs, sort_table, unobservable_columns
+from .features import TARGET, check_table, sort_table
 from .flights import one_per_cycle, to_samples
 from .metrics import evaluate_predictions
 from .models import build_model
@@ -56,14 +56,13 @@ from .splits import (
     TRAIN,
     VALIDATION,
     assign_roles,
-    development_and_test_units,
     segments,
 )
 from .train_config import LIBRARY_MODELS, TrainConfig
 from .training import (
     Member,
-    check_held_units,
     deterministic,
+    development_rows,
     predict_windows,
     prepare,
     progress_bar,
@@ -134,7 +133,7 @@ class RulModel:
         """Per-sample predictions (module docstring): ``unit``, ``cycle``, ``t`` and ``RUL``
         when the table has them, ``RUL_pred``, ``RUL_std`` (2+ members), ``RUL_lower`` and
         ``RUL_upper`` (with an interval). ``progress(done, total)`` counts windows times
-        members as they are computed."""
+        members as they are computed (the library model: flights, once, at the end)."""
         if units is not None:
             missing = sorted(set(int(u) for u in units) - set(df["unit"].unique().tolist()))
             if missing:
@@ -195,9 +194,14 @@ class RulModel:
         out["RUL_pred"] = mean if cap is None else np.clip(mean, 0.0, cap)
         if len(preds) > 1:
             out["RUL_std"] = preds.std(axis=0, ddof=1)
+        return self._finish(out, samples)
+
+    def _finish(self, out: pd.DataFrame, samples: pd.DataFrame) -> pd.DataFrame:
+        """The interval around ``out``'s predictions, and a flight model's flights carried to
+        the samples of ``samples``."""
         if self.conformal is not None:
             out["RUL_lower"], out["RUL_upper"] = self.conformal.interval(out["RUL_pred"])
-        if cfg.per_flight and not one_per_cycle(samples):
+        if self.config.per_flight and not one_per_cycle(samples):
             out = to_samples(out, samples, [c for c in out.columns if c.startswith("RUL_")])
         return out
 
@@ -208,11 +212,7 @@ class RulModel:
         out = self.library.predict(flights, self.config.max_rul)
         if progress is not None:
             progress(len(out), len(out))
-        if self.conformal is not None:
-            out["RUL_lower"], out["RUL_upper"] = self.conformal.interval(out["RUL_pred"])
-        if not one_per_cycle(samples):
-            out = to_samples(out, samples, [c for c in out.columns if c.startswith("RUL_")])
-        return out
+        return self._finish(out, samples)
 
     def evaluate(self, df: pd.DataFrame, units: Sequence[int], device: str = "cpu",
                  source: str = "table", progress: Callable[[int, int], None] | None = None
@@ -287,6 +287,9 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
 
     The ``similarity`` model trains nothing: :func:`fit_library` (``seeds`` do not apply)."""
     if config.model in LIBRARY_MODELS:
+        if seeds is not None and len(list(seeds)) > 1:
+            raise InputError(f"{config.model}: no network and nothing random: one model, not "
+                             f"an ensemble of {len(list(seeds))}")
         return fit_library(df, metadata, config, source)
     prep = prepare(df, metadata, config, source)
     cfg = prep.config
@@ -325,46 +328,38 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
 
 def fit_library(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
                 source: str = "table") -> RulModel:
-    """The ``similarity`` model (:mod:`.similarity`) of ``df``'s development units: the
-    flight table of the units (:func:`.training.rows_for`, with the health coordinates of the
-    engine model θ̂ was calibrated with), one health-index column (``config.inputs``), the
+    """The ``similarity`` model (:mod:`.similarity`) of ``df``'s development units: their
+    flight table with the health coordinates of the engine model θ̂ was calibrated with
+    (:func:`.training.development_rows`), one health-index column (``config.inputs``), the
     library of every development unit but the conformal ones (their RUL capped at
     ``max_rul``), a min-max scaler of that column on the library's flights (for the warning
     on inputs far outside the training range), and, with conformal units, the split-conformal
     interval of the library's predictions on them. Nothing is optimised, so there are no
     validation units (refused when named) and no seeds."""
-    cfg = config.resolved()
-    if TARGET not in df.columns:
-        raise InputError(f"{source}: no {TARGET} column to train on")
-    if cfg.val_units or cfg.validation != "auto":
+    if config.val_units or config.validation != "auto":
         raise InputError(f"{source}: the similarity model optimises nothing and stops nothing "
                          "early: it takes no validation units (every development unit joins "
                          "its library)")
-    present = np.unique(df["unit"].to_numpy()).tolist()
-    dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
-    check_held_units(cfg, dev, test, source)
-    effects = health_effects(metadata)
-    flights = rows_for(cfg, sort_table(df[df["unit"].isin(dev)]), effects, source)
-    columns = resolve_inputs(cfg.inputs, list(flights.columns), source,
-                             unobservable_columns(flights))
+    d = development_rows(df, metadata, config, source)
+    cfg, flights, columns = d.config, d.frame, d.columns
     if len(columns) != 1:
         raise InputError(f"{source}: the similarity model reads one health index (inputs "
                          f"HI_hat, or HI for the true θ); inputs {cfg.inputs!r} are "
                          f"{len(columns)} columns ({', '.join(columns[:6])}"
                          f"{' ...' if len(columns) > 6 else ''})")
-    check_table(flights, columns, source)
-    roles = assign_roles(flights["unit"].to_numpy(), flights["cycle"].to_numpy(), dev,
+    roles = assign_roles(flights["unit"].to_numpy(), flights["cycle"].to_numpy(), d.dev_units,
                          validation="flights", val_fraction=0.0,
                          conformal_units=cfg.conformal_units, source=source)
     in_library = roles == TRAIN
-    library_units = sorted({int(u) for u in flights["unit"].to_numpy()[in_library]})
-    conformal = sorted({int(u) for u in flights["unit"].to_numpy()[roles == CONFORMAL]})
+    unit = flights["unit"].to_numpy()
+    library_units = sorted({int(u) for u in unit[in_library]})
+    conformal = sorted({int(u) for u in unit[roles == CONFORMAL]})
     lib_flights = flights[in_library]
     if cfg.max_rul is not None:
         lib_flights = lib_flights.assign(**{TARGET: np.minimum(lib_flights[TARGET],
                                                                cfg.max_rul)})
     longest = int(lib_flights.groupby("unit").size().max())
-    if cfg.window > longest:
+    if cfg.window > longest:  # (the conformal units may be longer)
         raise InputError(f"{source}: window {cfg.window} is longer than the longest library "
                          f"unit ({longest} flights)")
     library = SimilarityRul.fit(lib_flights, cfg.window, columns[0])
@@ -372,7 +367,7 @@ def fit_library(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     units = {"training": library_units, **({"conformal": conformal} if conformal else {})}
     model = RulModel(cfg, tuple(columns), scaler, [], library=library,
                      info={"units": units, "dropped_constant": [],
-                           "health_effects": list(effects)})
+                           "health_effects": list(d.health_effects)})
     if conformal:
         held = flights[flights["unit"].isin(conformal)]
         pred = library.predict(held, cfg.max_rul)

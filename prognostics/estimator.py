@@ -40,7 +40,7 @@ from engine_model.validation import InputError
 from .checkpoint import load_model, save_model
 from .ensemble import RulModel, fit
 from .evaluation import Evaluation
-from .train_config import DEFAULT_INPUTS, TrainConfig
+from .train_config import DEFAULT_INPUTS, LIBRARY_MODELS, TrainConfig
 
 
 def _frame_and_metadata(data) -> tuple[pd.DataFrame, dict, str]:
@@ -69,6 +69,9 @@ class RulEstimator:
                              f"{', '.join(sorted(known))}")
         if ensemble < 1:
             raise InputError(f"RulEstimator: ensemble must be >= 1, got {ensemble}")
+        if ensemble > 1 and options.get("model") in LIBRARY_MODELS:
+            raise InputError(f"RulEstimator: the {options['model']} model has no network and "
+                             f"nothing random: ensemble {ensemble} is not one")
         if "inputs" not in options and options.get("model") in DEFAULT_INPUTS:
             options["inputs"] = DEFAULT_INPUTS[options["model"]]
         self.config = TrainConfig(**options)

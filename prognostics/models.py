@@ -58,7 +58,7 @@ from torch import nn
 
 from engine_model.validation import InputError
 
-from .train_config import FLIGHT_MODELS, MODEL_KINDS
+from .train_config import FLIGHT_MODELS, LIBRARY_MODELS, MODEL_KINDS
 
 FNN_HIDDEN = (200, 200, 200, 50)
 CNN_CHANNELS = (10, 10, 1)
@@ -196,10 +196,12 @@ class TCN(nn.Module):
 
 def build_model(kind: str, n_inputs: int, window: int, seed: int | None = None) -> nn.Module:
     """A network of ``kind`` (``fnn``, ``cnn``, ``dcnn``, or the flight models ``tcn`` and
-    ``trend``, both a :class:`TCN`); Xavier-initialised from ``seed`` when given (otherwise
-    left for :meth:`load_state_dict`)."""
+    ``trend``, both a :class:`TCN`; ``similarity`` has no network); Xavier-initialised from
+    ``seed`` when given (otherwise left for :meth:`load_state_dict`)."""
     if kind not in MODEL_KINDS:
         raise InputError(f"unknown model {kind!r}; one of {', '.join(MODEL_KINDS)}")
+    if kind in LIBRARY_MODELS:
+        raise InputError(f"the {kind} model has no network (prognostics.similarity)")
     if n_inputs < 1:
         raise InputError("a model needs at least one input column")
     if kind == "fnn":

@@ -167,7 +167,7 @@ def rows_for(config: TrainConfig, frame: pd.DataFrame, effects: Sequence[str],
         groups = ", ".join(health_groups_of(config.inputs))
         raise InputError(f"{source}: inputs {config.inputs!r} name {groups}, computed per "
                          f"flight; the model {config.model} reads samples, and the table has "
-                         "several rows per cycle (use the flight models tcn or trend)")
+                         "several rows per cycle (use the flight models tcn, trend or similarity)")
     return flight_frame(frame, source, effects)
 
 
@@ -184,9 +184,25 @@ def check_held_units(cfg: TrainConfig, dev: Sequence[int], test: Sequence[int],
                              f"units: {', '.join(map(str, sorted(dev)))})")
 
 
-def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
-            source: str = "table") -> Prepared:
-    """Steps 1-3 of the module docstring."""
+@dataclass
+class DevelopmentRows:
+    """The rows a model of a configuration learns from (:func:`development_rows`)."""
+
+    config: TrainConfig  # resolved
+    frame: pd.DataFrame  # the development units' rows (or flight table), sorted
+    columns: list[str]
+    dev_units: list[int]
+    test_units: list[int]
+    health_effects: tuple[str, ...]
+
+
+def development_rows(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
+                     source: str = "table") -> DevelopmentRows:
+    """Step 1 of the module docstring, shared by the networks (:func:`prepare`) and the
+    similarity library (:func:`.ensemble.fit_library`): the development and test units, the
+    rows the model reads (:func:`rows_for`), its input columns, checked; a window longer
+    than every development unit and validation or conformal units among the test units are
+    refused."""
     cfg = config.resolved()
     if TARGET not in df.columns:
         raise InputError(f"{source}: no {TARGET} column to train on")
@@ -194,19 +210,29 @@ def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     dev, test = development_and_test_units(present, metadata, cfg.units, cfg.test_units, source)
     every_unit = set(present) <= set(dev)  # no copy of the table when it is all development
     frame = sort_table(df if every_unit else df[df["unit"].isin(dev)])
-    effects = health_effects(metadata)
+    effects = tuple(health_effects(metadata))
     frame = rows_for(cfg, frame, effects, source)
     columns = resolve_inputs(cfg.inputs, list(frame.columns), source,
                              unobservable_columns(frame))
     check_table(frame, columns, source)
     unit = frame["unit"].to_numpy()
-    cycle = frame["cycle"].to_numpy()
     longest = int(np.bincount(np.unique(unit, return_inverse=True)[1]).max())
     if cfg.window > longest:
         rows = "flights" if cfg.per_flight else "rows"
         raise InputError(f"{source}: window {cfg.window} is longer than the longest development "
                          f"unit ({longest} {rows})")
     check_held_units(cfg, dev, test, source)
+    return DevelopmentRows(cfg, frame, columns, dev, test, effects)
+
+
+def prepare(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
+            source: str = "table") -> Prepared:
+    """Steps 1-3 of the module docstring."""
+    d = development_rows(df, metadata, config, source)
+    cfg, frame, columns, dev, test, effects = (d.config, d.frame, d.columns, d.dev_units,
+                                               d.test_units, d.health_effects)
+    unit = frame["unit"].to_numpy()
+    cycle = frame["cycle"].to_numpy()
     n_fit = len(set(dev) - set(cfg.conformal_units))
     cfg = replace(cfg, validation=cfg.validation_for(n_fit))
     roles = assign_roles(unit, cycle, dev, (), seed=cfg.seed,

@@ -179,7 +179,7 @@ def test_flight_models_train_predict_and_stay_causal(make_features, monkeypatch,
 
 def test_health_groups_need_a_flight_model_on_a_table_of_samples(make_features):
     df, meta = make_features()
-    with pytest.raises(InputError, match="several rows per cycle .*tcn or trend"):
+    with pytest.raises(InputError, match="several rows per cycle .*tcn, trend or similarity"):
         fit(df, meta, TrainConfig(model="fnn", inputs="physics", epochs=1))
 
 

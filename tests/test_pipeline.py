@@ -262,6 +262,9 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     ("[train]\nlr = -1\n", ["[train] lr", "-1"]),
     ("[train]\nbatch_size = 0\n", ["[train] batch_size", "0"]),
     ("[train]\ninputs = [\"bogus\"]\n", ["[train] inputs", "bogus", "input set"]),
+    ("[train]\nmodel = \"similarity\"\n", ["[train] inputs 'data-driven'", "one health index"]),
+    ("[train]\nmodel = \"similarity\"\ninputs = [\"HI_hat\"]\nensemble = 2\n",
+     ["[train] ensemble = 2", "nothing random"]),
     ("[data]\ntest_units = [9]\n", ["[data] test_units", "9", "not in the data"]),
     ("[discover]\nalpha = 1.5\n", ["[discover] alpha", "1.5"]),
     ("[calibrate]\ndrift = -0.01\n", ["[calibrate] drift", "-0.01"]),
@@ -272,8 +275,8 @@ def test_unknown_config_key_is_one_line_naming_key_and_file(runner, tmp_path):
     ("[simulate]\neffects = [\"customer_bleed:f0=0.02\"]\nseed = 3\n",
      ["[simulate] seed, effects set without preset", "nothing is simulated"]),
 ], ids=["epochs", "window", "max_rul", "max_rul-nan", "lr", "batch_size", "inputs",
-        "test_units", "alpha", "drift", "augment-without-discover", "neutral-effect",
-        "simulate-without-preset"])
+        "similarity-inputs", "similarity-ensemble", "test_units", "alpha", "drift",
+        "augment-without-discover", "neutral-effect", "simulate-without-preset"])
 def test_bad_config_values_are_refused_before_any_stage(runner, tmp_path, toml, fragments):
     """Issue 31: these failed only after calibrate (and discover) ran, naming neither the file
     nor the key (``--alpha 1.5``, ``drift_std_per_sqrt_h``): now one line naming both, and

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -181,8 +183,15 @@ def test_the_trained_model_takes_conformal_units_and_refuses_what_does_not_apply
         fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", val_units=(2,)))
     with pytest.raises(InputError, match="conformal unit.* 5 are test"):
         fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", conformal_units=(5,)))
-    with pytest.raises(InputError, match="window 99 is longer than the longest library unit"):
+    with pytest.raises(InputError, match="window 99 is longer than the longest development"):
         fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=99))
+    lives = df.groupby("unit")["cycle"].max()
+    assert lives[3] == lives.max() > lives[[1, 2, 4]].max()  # the fixture's: unit 3 longest
+    with pytest.raises(InputError, match="longer than the longest library unit"):
+        fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=int(lives[3]),
+                                  conformal_units=(3,)))
+    with pytest.raises(InputError, match="not an ensemble of 2"):
+        fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat"), seeds=[0, 1])
 
 
 def test_a_stored_library_that_was_edited_is_refused(make_features, monkeypatch, tmp_path):
@@ -213,8 +222,6 @@ def test_a_stored_library_that_was_edited_is_refused(make_features, monkeypatch,
 def test_hyprog_train_similarity_and_evaluate(make_features, monkeypatch, tmp_path):
     """Through the CLI: --model similarity reads HI_hat by default, reports its library, and
     evaluate scores it; --ensemble 2 is refused (nothing random)."""
-    import json
-
     from cli.main import app
     from engine_model.datasets import write_parquet
     from tests.cli_checks import cli_runner
@@ -234,3 +241,64 @@ def test_hyprog_train_similarity_and_evaluate(make_features, monkeypatch, tmp_pa
                             "--out", str(tmp_path / "m2")])
     assert r.exit_code != 0 and "nothing random" in r.stderr
     assert not (tmp_path / "m2").exists()
+
+
+def test_manifests_that_do_not_describe_the_model_are_refused_and_older_ones_load(
+        make_features, monkeypatch, tmp_path, torch_one_thread):
+    """A network's manifest without the ``library`` key (written before the similarity model
+    existed) loads; a library on a network's manifest, and a library model with a network or
+    with other inputs, are refused, naming the manifest."""
+    from prognostics.checkpoint import load_model, save_model
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+    from tests.test_prognostics_training import resign_manifest
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    save_model(fit(df, meta, TrainConfig(model="fnn", inputs="hybrid", epochs=1)),
+               tmp_path / "net")
+    save_model(fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5)),
+               tmp_path / "lib")
+    lib_body = json.loads((tmp_path / "lib" / "model.json").read_text())
+    net_body = json.loads((tmp_path / "net" / "model.json").read_text())
+    resign_manifest(tmp_path / "net", drop=("library",))
+    assert load_model(tmp_path / "net").library is None  # an older manifest
+    resign_manifest(tmp_path / "net", library=lib_body["library"])
+    with pytest.raises(InputError, match="a fnn model with a library"):
+        load_model(tmp_path / "net")
+    resign_manifest(tmp_path / "lib", members=net_body["members"])
+    with pytest.raises(InputError, match="model.json: a similarity model with a library, 1 "):
+        load_model(tmp_path / "lib")
+    resign_manifest(tmp_path / "lib", members=[], library=None)
+    with pytest.raises(InputError, match="a similarity model with no library"):
+        load_model(tmp_path / "lib")
+
+
+def test_hyprog_predict_with_a_similarity_model_and_its_interval(make_features, monkeypatch,
+                                                                 tmp_path):
+    from cli.main import app
+    from engine_model.datasets import write_parquet
+    from prognostics import RulEstimator
+    from tests.cli_checks import cli_runner
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    table = write_parquet(df, tmp_path / "f.parquet", meta)
+    runner = cli_runner()
+    r = runner.invoke(app, ["train", str(table), "--model", "similarity", "--window", "5",
+                            "--conformal-units", "4", "--json", "--out", str(tmp_path / "m")])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    assert rep["library"]["units"] == 3 and rep["validation"] is None
+    r = runner.invoke(app, ["predict", str(tmp_path / "m"), str(table), "--units", "5",
+                            "--out", str(tmp_path / "p.parquet")])
+    assert r.exit_code == 0, r.output
+    pred = pd.read_parquet(tmp_path / "p.parquet")
+    assert len(pred) == int((df.unit == 5).sum())
+    assert (pred["RUL_lower"] <= pred["RUL_pred"]).all() and \
+        (pred["RUL_pred"] <= pred["RUL_upper"]).all()
+    r = runner.invoke(app, ["train", str(table), "--model", "similarity", "--validation",
+                            "units", "--out", str(tmp_path / "m3")])
+    assert r.exit_code != 0 and "stops nothing early" in r.stderr
+    with pytest.raises(InputError, match="ensemble 2 is not one"):
+        RulEstimator(model="similarity", ensemble=2)

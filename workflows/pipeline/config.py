@@ -82,7 +82,8 @@ table            key                  meaning [default]
                                       every machine]
                  every other field    of :class:`prognostics.train_config.TrainConfig`, with
                                       its default there: ``window`` [50 CNN / 30 DCNN / 1
-                                      FNN], ``stride`` [1], ``max_rul`` [no cap],
+                                      FNN / 20 flights tcn and trend / 10 similarity],
+                                      ``stride`` [1], ``max_rul`` [no cap],
                                       ``batch_size`` [by data size], ``lr`` [0.001],
                                       ``patience`` [by data size], ``schedule`` [plateau],
                                       ``normalise`` [auto], ``drop_constant`` [true],
@@ -104,6 +105,7 @@ from pathlib import Path
 from calibration.base import ESTIMATORS
 from calibration.estimation_setup import CalibrationSetup
 from engine_model.validation import InputError
+from prognostics.choices import LIBRARY_MODELS
 from prognostics.train_config import TrainConfig
 
 _INT, _FLOAT, _STR, _BOOL = int, float, str, bool
@@ -223,6 +225,9 @@ def check_values(config: dict, source: str = "config") -> None:
     check("train", lambda: train_config(config, "data-driven", empty).resolved())
     if t["ensemble"] < 1:
         raise InputError(f"{source}: [train] ensemble must be >= 1, got {t['ensemble']}")
+    if t["model"] in LIBRARY_MODELS and t["ensemble"] > 1:
+        raise InputError(f"{source}: [train] ensemble = {t['ensemble']}: the {t['model']} "
+                         "model has no network and nothing random; one is the same as many")
     if not t["inputs"]:
         raise InputError(f"{source}: [train] inputs is empty: name at least one input set")
     c = config["calibrate"]

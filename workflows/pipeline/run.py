@@ -178,7 +178,8 @@ def _run(ctx: stages.Context, data: Path | None) -> dict:
     augment = cfg["discover"]["augment"] and disc is not None
     fin = {"calibrate": cal["fp"], **({"discover": disc["fp"]} if augment else {})}
     feats = step("features", {"augment": augment, "data": data_cfg,
-                              "inputs": cfg["train"]["inputs"]}, fin, stages.features, data,
+                              "inputs": cfg["train"]["inputs"],  # resolved for the model:
+                              "model": cfg["train"]["model"]}, fin, stages.features, data,
                  summaries["calibrate"], summaries.get("discover") if augment else None)
     tr = step("train", {"train": cfg["train"], "data": data_cfg, "seed": seed},
               {"features": feats["fp"]}, stages.train, summaries["features"])

@@ -148,6 +148,7 @@ def check_data_against_config(ctx: Context, data: Path) -> None:
     them) and the flight table's health coordinates (the flight models add them)."""
     from engine_model.channels import THETA_NAMES, UNITS
     from engine_model.datasets import read_columns, read_dataset, read_metadata
+    from prognostics.choices import LIBRARY_MODELS
     from prognostics.features import HEALTH_STEMS, resolve_inputs
 
     source = ctx.config_source
@@ -172,12 +173,16 @@ def check_data_against_config(ctx: Context, data: Path) -> None:
     flights = [f"{h}{s}" for h in HEALTH_STEMS for s in ("", "_hat")] + ["HI_hat_rel"] + \
         [f"{q}{s}" for q in THETA_NAMES for s in ("_hat_rel", "_mode")]
     columns = [*read_columns(data), *hats, *flights]  # the feature (and flight) table's
+    model = ctx.config["train"]["model"]
     for spec in ctx.config["train"]["inputs"]:
         try:
-            resolve_inputs(spec, columns, "the feature table")
+            cols = resolve_inputs(spec, columns, "the feature table")
         except InputError as e:
             raise InputError(f"{source}: [train] inputs {spec!r} is not an input set, a group "
                              f"or columns the feature table will have ({e})") from None
+        if model in LIBRARY_MODELS and len(cols) != 1:
+            raise InputError(f"{source}: [train] inputs {spec!r}: the {model} model reads one "
+                             f"health index (inputs = [\"HI_hat\"]), not {len(cols)} columns")
 
 
 def _read(path, units=None):
