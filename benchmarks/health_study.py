@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -118,30 +119,20 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
                    "floors": {k: scores(to_samples(p, samples)) for k, p in fl.items()}}
             append_run(cache, rec)
             done[key] = rec
-        for name, (model, window) in LIBRARY.items():
-            if name not in predictors:
-                continue
-            key = run_key({"data": fp, "n": n, "units": units,
-                           "library": {"model": model, "window": window}}, KEY_LENGTH)
-            if key in done:
-                continue
-            res = library_predict(flights[flights["unit"].isin(units)], test_fl, window,
-                                  samples)
-            rec = {"key": key, "kind": "model", "fleet": seed, "n": n, "units": units,
-                   "predictor": name, **res}
-            append_run(cache, rec)
-            done[key] = rec
-            print(f"[{time.strftime('%H:%M:%S')}] fleet {seed} n {n} {name}: RMSE "
-                  f"{res['ensemble']['rmse']:.2f}", flush=True)
+        dev_fl = flights[flights["unit"].isin(units)]
+        jobs = [(name, {"library": {"model": model, "window": window}},
+                 partial(library_predict, dev_fl, test_fl, window, samples))
+                for name, (model, window) in LIBRARY.items()]
         for name, (model, inputs, window) in PREDICTORS.items():
-            if name not in predictors:
-                continue
             cfg = TrainConfig(model=model, inputs=inputs, window=window, device="cpu")
-            key = run_key({"data": fp, "n": n, "units": units, "seeds": list(SEEDS),
-                           "config": cfg.to_dict()}, KEY_LENGTH)
-            if key in done:
+            jobs.append((name, {"seeds": list(SEEDS), "config": cfg.to_dict()},
+                         partial(train_predict, flights, meta, cfg, SEEDS, units, test,
+                                 samples)))
+        for name, body, run in jobs:
+            key = run_key({"data": fp, "n": n, "units": units, **body}, KEY_LENGTH)
+            if name not in predictors or key in done:
                 continue
-            res = train_predict(flights, meta, cfg, SEEDS, units, test, samples)
+            res = run()
             rec = {"key": key, "kind": "model", "fleet": seed, "n": n, "units": units,
                    "predictor": name, **res}
             append_run(cache, rec)
