@@ -19,9 +19,17 @@ health coordinates of θ̂ and θ̂ relative to early life: the choice of ``ds02
 folds) and ``health`` (the health coordinates alone: the best on ``ds02``'s test units, named
 here for that reason and reported as such). Added 2026-11-29, after the networks' runs and
 before any fleet was scored with it: ``similarity`` (:mod:`prognostics.similarity`, window 10
-flights, the choice of ``ds02``'s development folds; no network and no seeds), the predictor
-that question asks of every fleet: is the similarity predictor ahead of the HI lookup floor
-beyond ``ds02``?
+flights, the choice of ``ds02``'s development folds; no network and no seeds), to ask of
+every fleet whether it is ahead of the HI lookup floor beyond ``ds02``.
+
+**Replication** (fixed 2026-11-29 before any of its fleets was simulated, after the 10-fleet
+result for the similarity predictor was ahead of the HI lookup by 0.6-0.7 cycle with 95 %
+intervals reaching zero): fleets 10-19, the floors and ``similarity`` only
+(``--fleets 10-19 --predictors similarity --results
+benchmarks/results/health_study/replication``). The test: the similarity predictor minus the
+HI lookup per fleet at 6, 12 and 24 training units, mean and 95 % interval over these 10 new
+fleets alone, reported whatever it is. Pooling them with fleets 0-9 after seeing those would
+be optional stopping: a pooled figure is only ever reported beside it, as such.
 
 Report: per ``n``, the mean over fleets of each predictor's test RMSE, and the hybrid-minus-
 data-driven difference per fleet with its 95 % confidence interval over fleets (Student t);
@@ -30,11 +38,13 @@ the curve of the hybrid-minus-data-driven difference against ``n`` (``study.png`
 The tables and the figure go to ``--results`` (default: ``--work``, ``out/study``); the
 committed ones are written only when asked, ``--results benchmarks/results/health_study``.
 ``--report`` trains nothing; without a cache it rewrites the tables from the committed
-``benchmarks/results/health_study/study_runs.csv``. ``--predictors`` picks the predictors
-that run (the floors always do: they are cheap). ``--merge-committed`` adds the committed
-table's rows that the cache lacks, for each fleet and ``n`` whose floors the cache
-reproduces (the floors are deterministic in the data and the units, so equal floors mean the
-same fleet); a fleet and ``n`` whose floors differ are refused, naming them.
+``benchmarks/results/health_study/study_runs.csv``. The tables cover the fleets of
+``--fleets`` (default 0-9, the committed study) whatever else the cache holds.
+``--predictors`` picks the predictors that run (the floors always do: they are cheap).
+``--merge-committed`` adds the committed table's rows that the cache lacks, for each fleet
+and ``n`` whose floors the cache reproduces (the floors are deterministic in the data and
+the units, so equal floors mean the same fleet); a fleet and ``n`` whose floors differ are
+refused, naming them.
 Every run is cached in ``--work``/``runs.jsonl`` (fleet, n, predictor, data fingerprint); an
 interrupted study resumes, and ``--fleets`` / ``--sizes`` pick what runs. ``--rate`` (default
 0.05 Hz, half the paper experiment's, to halve the calibration) is the sampling rate of the
@@ -309,11 +319,13 @@ def main(argv=None) -> int:
         sizes = [int(s) for s in a.sizes.split(",")]
         for seed in parse_range(a.fleets):
             run_fleet(a.work, seed, a.rate, sizes, cache, done, predictors)
-    t = runs_table(read_runs(cache))
+    fleets = set(parse_range(a.fleets))  # the tables cover the fleets asked for
+    t = runs_table([r for r in read_runs(cache) if r["fleet"] in fleets])
     committed = COMMITTED / "study_runs.csv"
     if t.empty and a.report and committed.is_file():  # no cache here: the committed table
         print(f"no runs in {cache}: the tables from {committed}", file=sys.stderr)
         t = pd.read_csv(committed)
+        t = t[t["fleet"].isin(fleets)]
     elif a.merge_committed:
         t = merge_committed(t, pd.read_csv(committed))
     print(report(t, results))
