@@ -287,9 +287,10 @@ def fit(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
 
     The ``similarity`` model trains nothing: :func:`fit_library` (``seeds`` do not apply)."""
     if config.model in LIBRARY_MODELS:
-        if seeds is not None and len(list(seeds)) > 1:
+        n = 1 if seeds is None else len(list(seeds))
+        if n > 1:
             raise InputError(f"{config.model}: no network and nothing random: one model, not "
-                             f"an ensemble of {len(list(seeds))}")
+                             f"an ensemble of {n}")
         return fit_library(df, metadata, config, source)
     prep = prepare(df, metadata, config, source)
     cfg = prep.config

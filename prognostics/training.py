@@ -171,19 +171,6 @@ def rows_for(config: TrainConfig, frame: pd.DataFrame, effects: Sequence[str],
     return flight_frame(frame, source, effects)
 
 
-def check_held_units(cfg: TrainConfig, dev: Sequence[int], test: Sequence[int],
-                     source: str = "table") -> None:
-    """Validation and conformal units of ``cfg`` are not test units (a test unit is only
-    ever evaluated)."""
-    for what, given in (("validation", cfg.val_units or ()),
-                        ("conformal", cfg.conformal_units)):
-        held = sorted(set(int(u) for u in given) & set(test))
-        if held:
-            raise InputError(f"{source}: {what} unit(s) {', '.join(map(str, held))} are test "
-                             "units (a test unit is only ever evaluated; choose development "
-                             f"units: {', '.join(map(str, sorted(dev)))})")
-
-
 @dataclass
 class DevelopmentRows:
     """The rows a model of a configuration learns from (:func:`development_rows`)."""
@@ -221,7 +208,13 @@ def development_rows(df: pd.DataFrame, metadata: dict | None, config: TrainConfi
         rows = "flights" if cfg.per_flight else "rows"
         raise InputError(f"{source}: window {cfg.window} is longer than the longest development "
                          f"unit ({longest} {rows})")
-    check_held_units(cfg, dev, test, source)
+    for what, given in (("validation", cfg.val_units or ()),
+                        ("conformal", cfg.conformal_units)):
+        held = sorted(set(int(u) for u in given) & set(test))
+        if held:
+            raise InputError(f"{source}: {what} unit(s) {', '.join(map(str, held))} are test "
+                             "units (a test unit is only ever evaluated; choose development "
+                             f"units: {', '.join(map(str, sorted(dev)))})")
     return DevelopmentRows(cfg, frame, columns, dev, test, effects)
 
 
