@@ -145,15 +145,15 @@ def train_predict(flights, meta, cfg, seeds, units, evaluate_units, samples) -> 
             "seconds": time.perf_counter() - t0}
 
 
-def library_predict(dev_flights, held_flights, window, samples) -> dict:
-    """The similarity predictor (:mod:`prognostics.similarity`) fitted on the development
-    flights and scored on the held-out ones, in the records' form (no seeds: nothing in it
-    is random)."""
+def library_predict(dev_flights, held_flights, window, samples, column="HI_hat") -> dict:
+    """The similarity predictor (:mod:`prognostics.similarity`) on the health-index column
+    ``column``, fitted on the development flights and scored on the held-out ones, in the
+    records' form (no seeds: nothing in it is random)."""
     from prognostics.flights import to_samples
     from prognostics.similarity import SimilarityRul
 
     t0 = time.perf_counter()
-    pred = SimilarityRul.fit(dev_flights, window).predict(held_flights)
+    pred = SimilarityRul.fit(dev_flights, window, column).predict(held_flights)
     return {"per_seed": [], "ensemble": scores(to_samples(pred, samples)),
             "seconds": time.perf_counter() - t0}
 
