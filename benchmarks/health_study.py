@@ -58,7 +58,8 @@ changes.
 Report: per ``n``, the mean over fleets of each predictor's test RMSE, and the hybrid-minus-
 data-driven difference per fleet with its 95 % confidence interval over fleets (Student t);
 the hybrid minus each floor the same way (what a network adds to a lookup with no network);
-the curve of the hybrid-minus-data-driven difference against ``n`` (``study.png``).
+the curve of the hybrid-minus-data-driven difference, and of each comparison fixed in
+advance (:data:`COMPARISONS`), against ``n`` (``study.png``).
 The tables and the figure go to ``--results`` (default: ``--work``, ``out/study``); the
 committed ones are written only when asked, ``--results benchmarks/results/health_study``.
 ``--report`` trains nothing; without a cache it rewrites the tables from the committed
@@ -90,7 +91,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from common import hyprog, parse_range, run_key  # noqa: E402
-from health_features import KEY_LENGTH, library_predict, scores, train_predict  # noqa: E402
+from health_features import (  # noqa: E402
+    KEY_LENGTH,
+    library_body,
+    library_predict,
+    scores,
+    train_predict,
+)
 from run_cache import append_run, read_runs  # noqa: E402
 
 # (the project's modules are imported where they are used: ``--help`` answers at once)
@@ -157,10 +164,7 @@ def run_fleet(work: Path, seed: int, rate: float, sizes, cache: Path, done: dict
             append_run(cache, rec)
             done[key] = rec
         dev_fl = flights[flights["unit"].isin(units)]
-        # the column joins the key only where it is not HI_hat, so that the runs cached
-        # before there was a choice of column keep their keys
-        jobs = [(name, {"library": {"model": model, "window": window,
-                                    **({"column": column} if column != "HI_hat" else {})}},
+        jobs = [(name, {"library": library_body(model, window, column)},
                  partial(library_predict, dev_fl, test_fl, window, samples, column))
                 for name, (model, window, column) in LIBRARY.items()]
         for name, (model, inputs, window) in PREDICTORS.items():
@@ -261,7 +265,7 @@ def report(t: pd.DataFrame, results: Path) -> str:
              "| n units | fleets | " + " | ".join(sorted(t["predictor"].unique())) +
              " | " + " | ".join(f"{h} - data-driven [95 % CI]" for h in HYBRIDS) + " |",
              "|---" * (2 + t["predictor"].nunique() + len(HYBRIDS)) + "|"]
-    curve = {h: [] for h in HYBRIDS}
+    curve = {(h, "data-driven"): [] for h in HYBRIDS}  # (a, b) -> points of a - b
     for n, g in t.groupby("n"):
         p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
         cells = [f"{p[c].mean():.2f}" if c in p.columns else "-"
@@ -271,7 +275,7 @@ def report(t: pd.DataFrame, results: Path) -> str:
             cell, ci = paired(p, h, "data-driven")
             diffs.append(cell)
             if ci:
-                curve[h].append((n, *ci))
+                curve[h, "data-driven"].append((n, *ci))
         lines.append(f"| {n} | {p.shape[0]} | " + " | ".join(cells) + " | " +
                      " | ".join(diffs) + " |")
     floors = [f for f in ("floor: hi-lookup", "floor: life") if f in set(t["predictor"])]
@@ -291,8 +295,13 @@ def report(t: pd.DataFrame, results: Path) -> str:
                   "|---" * (1 + len(present)) + "|"]
         for n, g in t.groupby("n"):
             p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
-            lines.append(f"| {n} | " + " | ".join(paired(p, a, b)[0] for a, b in present)
-                         + " |")
+            cells = []
+            for a, b in present:
+                cell, ci = paired(p, a, b)
+                cells.append(cell)
+                if ci:
+                    curve.setdefault((a, b), []).append((n, *ci))
+            lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines += ["", "Accuracy over life at λ = 0.5 (half-way from a unit's first prediction to its "
               "failure; Saxena et al. 2010): the fraction of test units whose prediction lies "
               "within ±20 % of the true RUL, and the mean relative accuracy; mean over the "
@@ -310,11 +319,11 @@ def report(t: pd.DataFrame, results: Path) -> str:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.5), dpi=150)
-    for h, pts in curve.items():
+    for (a, b), pts in curve.items():
         if pts:
             n, m, lo, hi = map(np.array, zip(*pts, strict=True))
             ax.errorbar(n, m, yerr=[m - lo, hi - m], marker="o", capsize=4,
-                        label=f"{h} - data-driven")
+                        label=f"{a} - {b}")
     ax.axhline(0.0, color="grey", lw=0.8)
     ax.set_xscale("log", base=2)
     sizes = sorted(t["n"].unique())
@@ -322,8 +331,9 @@ def report(t: pd.DataFrame, results: Path) -> str:
     ax.minorticks_off()
     ax.set_xlabel("training units")
     ax.set_title(f"95 % intervals over {t['fleet'].nunique()} fleets")
-    ax.set_ylabel("test RMSE difference [cycles] (< 0: physics helps)")
-    ax.legend()
+    ax.set_ylabel("test RMSE difference [cycles] (< 0: the first is better)")
+    if ax.get_legend_handles_labels()[0]:  # (no data-driven run and no comparison: no curve)
+        ax.legend()
     fig.tight_layout()
     fig.savefig(results / "study.png")
     plt.close(fig)

@@ -26,7 +26,7 @@ from prognostics.choices import (
     VALIDATIONS,
 )
 
-INPUTS_HELP = ("Input set (default hybrid; HI_hat for similarity: one health-index column) "
+INPUTS_HELP = ("Input set (default hybrid; HI_hat_rel for similarity: one health-index column) "
                "(data-driven, denoised, virtual, hybrid, truth-theta; for tcn and "
                "trend, or any model on a table with one row per cycle such as C-MAPSS, also "
                "physics, hybrid-health, physics-mode, health-mode), groups joined by '+' "

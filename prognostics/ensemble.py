@@ -345,7 +345,7 @@ def fit_library(df: pd.DataFrame, metadata: dict | None, config: TrainConfig,
     cfg, flights, columns = d.config, d.frame, d.columns
     if len(columns) != 1:
         raise InputError(f"{source}: the similarity model reads one health index (inputs "
-                         f"HI_hat, or HI for the true θ); inputs {cfg.inputs!r} are "
+                         f"HI_hat, HI_hat_rel, or HI for the true θ); inputs {cfg.inputs!r} are "
                          f"{len(columns)} columns ({', '.join(columns[:6])}"
                          f"{' ...' if len(columns) > 6 else ''})")
     roles = assign_roles(flights["unit"].to_numpy(), flights["cycle"].to_numpy(), d.dev_units,

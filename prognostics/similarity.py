@@ -26,6 +26,21 @@ says where the engine is, the fleet's histories say how long such an engine last
    (Wang et al. weight by a similar kernel), not a calibrated likelihood: on ``ds02`` the
    average flight spreads its weight over about three of the six library units.
 
+**Which health index.** The class matches whichever column it is given (``HI_hat`` by
+default, as Wang et al. match their fused index). The trained model's default
+(:data:`.train_config.DEFAULT_INPUTS`) is ``HI_hat_rel``, the health index minus its mean over
+the unit's first flights (:mod:`.flights`, causal): engines leave the factory at different
+health (initial wear), and when that level says little about how long an engine lasts,
+matching the absolute index pairs engines by it, most before the onset of fault, where the
+index barely moves; the change since entry into service is the degradation. (Our simulator
+draws a unit's end of life apart from its initial wear; where the level from new does set
+the life, as a smaller margin from new might in service, give ``HI_hat``.) Chosen by the
+many-fleet study (``benchmarks/health_study.py``, fixed before its 20 test fleets were
+scored): at 6, 12 and 24 training units, ``HI_hat_rel`` minus ``HI_hat`` -1.03, -1.16,
+-1.25 cycles RMSE, 95 % intervals below zero (on ``ds02``'s three test units the other way,
+7.93 against 6.64). It needs each unit's history from entry into service: a table whose
+units start in mid-life takes their first flights in it as their early life.
+
 Every prediction of flight ``n`` reads flights ``1 .. n`` of its unit only (causal); it is
 issued at the flight's end, like the flight models' (:mod:`.flights`). Library units
 shorter than ``k`` flights do not vote.

@@ -43,11 +43,13 @@ capped at ``trend_cap`` (None: the longest development life, as the baseline's p
 Every flight gets a prediction (windows left-padded, :mod:`prognostics.windows`).
 
 ``similarity`` (:data:`LIBRARY_MODELS`) is no network: the training units' trajectories of
-one health index (``inputs``, default ``HI_hat``) are a library, and a unit's last ``window``
-flights (default 10, the choice of ``ds02``'s development folds) are matched to it
-(:mod:`prognostics.similarity`, Wang et al. 2008). Nothing is optimised, so nothing stops
-early: it has no validation units, and the epoch, batch, learning-rate, patience, schedule
-and normalisation fields do not apply (they are recorded as given).
+one health index (``inputs``, default ``HI_hat_rel``: the health index of θ̂ relative to the
+unit's early life, the many-fleet study's choice over the absolute ``HI_hat``,
+:mod:`prognostics.similarity`) are a library, and a unit's last ``window`` flights (default
+10, the choice of ``ds02``'s development folds) are matched to it (Wang et al. 2008).
+Nothing is optimised, so nothing stops early: it has no validation units, and the epoch,
+batch, learning-rate, patience, schedule and normalisation fields do not apply (they are
+recorded as given).
 
 The numbers were set once, for C-MAPSS FD001, not per data set: :data:`MIN_BATCHES` 16 gives
 Li et al.'s batch of 512 there, chosen over 128 on one cross-validation fold
@@ -76,7 +78,7 @@ DEFAULT_EPOCHS = {"fnn": 60, "cnn": 30, "dcnn": 250,  # dcnn: Li, Ding & Sun 201
                   "tcn": 300, "trend": 300}
 DEFAULT_WINDOW = {"fnn": 1, "cnn": 50, "dcnn": 30, "tcn": 20, "trend": 20, "similarity": 10}
 #: the inputs of a model whose caller gives none (the CLI's and the estimator's default)
-DEFAULT_INPUTS = {"similarity": "HI_hat"}
+DEFAULT_INPUTS = {"similarity": "HI_hat_rel"}
 PAPER_BATCH, PAPER_PATIENCE = 1024, 5
 MIN_BATCHES = 16
 MIN_BATCH = 32

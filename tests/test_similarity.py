@@ -159,7 +159,7 @@ def test_the_trained_model_is_the_library_of_its_flights_capped_and_round_trips(
     save_model(again, tmp_path / "m")  # a library model directory is one hyprog may replace
     from prognostics import RulEstimator
 
-    assert RulEstimator(model="similarity").config.inputs == "HI_hat"  # its default
+    assert RulEstimator(model="similarity").config.inputs == "HI_hat_rel"  # its default
     est = RulEstimator.load(tmp_path / "m")
     assert est.ensemble == 1 and est.model_.library is not None
 
@@ -220,7 +220,7 @@ def test_a_stored_library_that_was_edited_is_refused(make_features, monkeypatch,
 
 
 def test_hyprog_train_similarity_and_evaluate(make_features, monkeypatch, tmp_path):
-    """Through the CLI: --model similarity reads HI_hat by default, reports its library, and
+    """Through the CLI: --model similarity reads HI_hat_rel by default, reports its library, and
     evaluate scores it; --ensemble 2 is refused (nothing random)."""
     from cli.main import app
     from engine_model.datasets import write_parquet
@@ -233,7 +233,7 @@ def test_hyprog_train_similarity_and_evaluate(make_features, monkeypatch, tmp_pa
     r = runner.invoke(app, ["train", str(table), "--model", "similarity", "--window", "5",
                             "--out", str(tmp_path / "m")])
     assert r.exit_code == 0, r.output
-    assert "SIMILARITY on HI_hat, window 5 flights: a library of 4 unit(s)" in r.stdout
+    assert "SIMILARITY on HI_hat_rel, window 5 flights: a library of 4 unit(s)" in r.stdout
     r = runner.invoke(app, ["evaluate", str(tmp_path / "m"), str(table), "--json"])
     assert r.exit_code == 0, r.output
     assert set(json.loads(r.stdout)["samples"]["units"]) == {"5", "6"}
@@ -302,3 +302,31 @@ def test_hyprog_predict_with_a_similarity_model_and_its_interval(make_features, 
     assert r.exit_code != 0 and "stops nothing early" in r.stderr
     with pytest.raises(InputError, match="ensemble 2 is not one"):
         RulEstimator(model="similarity", ensemble=2)
+
+
+def test_on_the_health_index_relative_to_early_life_a_units_initial_level_does_not_count(
+        make_features, monkeypatch):
+    """``inputs="HI_hat_rel"``: the library and the match read the health index minus its
+    mean over the unit's first flights (:mod:`prognostics.flights`), so a test unit whose θ̂
+    sits lower by a constant from its first flight on (initial wear; the stand-in index is
+    linear there) gets the same predictions, while the model on the absolute ``HI_hat``
+    reads the lower level as less life."""
+    import prognostics.baseline as baseline
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+    from tests.test_flights import LinearHI
+
+    class Linear(LinearHI):  # every margin 1 + 20 sum(θ): the index linear in θ everywhere
+        A = dict.fromkeys(LinearHI.A, 20.0)
+
+    monkeypatch.setattr(baseline, "engine_health_index", lambda effects=(): Linear())
+    df, meta = make_features()
+    test = df[df.unit.isin(meta["test_units"])]
+    worn = test.assign(HPT_eff_mod_hat=test["HPT_eff_mod_hat"] - 0.01)
+    rel = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat_rel", window=5))
+    assert rel.columns == ("HI_hat_rel",)
+    np.testing.assert_allclose(rel.predict(worn)["RUL_pred"], rel.predict(test)["RUL_pred"],
+                               rtol=0, atol=1e-9)
+    absolute = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5))
+    moved = absolute.predict(worn)["RUL_pred"] - absolute.predict(test)["RUL_pred"]
+    assert (moved < 0).mean() > 0.5

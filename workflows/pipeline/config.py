@@ -71,7 +71,7 @@ table            key                  meaning [default]
                  ``augment``          add what was found and recalibrate (``--augment``) [false]
 ``train``        ``model``            ``cnn``, ``fnn``, ``dcnn``, the flight models ``tcn``
                                       and ``trend``, or ``similarity`` (no network; inputs
-                                      ``["HI_hat"]``) [cnn]
+                                      ``["HI_hat_rel"]`` or ``["HI_hat"]``) [cnn]
                  ``inputs``           input sets, each trained and evaluated
                                       [["data-driven", "hybrid"]]
                  ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]

@@ -182,7 +182,7 @@ def check_data_against_config(ctx: Context, data: Path) -> None:
                              f"or columns the feature table will have ({e})") from None
         if model in LIBRARY_MODELS and len(cols) != 1:
             raise InputError(f"{source}: [train] inputs {spec!r}: the {model} model reads one "
-                             f"health index (inputs = [\"HI_hat\"]), not {len(cols)} columns")
+                             f"health index (inputs = [\"HI_hat_rel\"]), not {len(cols)} columns")
 
 
 def _read(path, units=None):
