@@ -65,7 +65,8 @@ committed ones are written only when asked, ``--results benchmarks/results/healt
 ``--report`` trains nothing; without a cache it rewrites the tables from the committed
 ``benchmarks/results/health_study/study_runs.csv``. The tables cover the fleets of
 ``--fleets`` (default 0-9, the committed study) whatever else the cache holds.
-``--predictors`` picks the predictors that run (the floors always do: they are cheap).
+``--predictors`` picks the predictors that run and that the tables cover (the floors always
+do: they are cheap).
 ``--merge-committed`` adds the committed table's rows that the cache lacks, for each fleet
 and ``n`` whose floors the cache reproduces (the floors are deterministic in the data and
 the units, so equal floors mean the same fleet); a fleet and ``n`` whose floors differ are
@@ -112,7 +113,11 @@ PREDICTORS = {"data-driven": ("tcn", "data-driven", 20), "physics": ("tcn", "phy
 LIBRARY = {"similarity": ("similarity", 10, "HI_hat"),
            "similarity-rel": ("similarity", 10, "HI_hat_rel")}
 SEEDS = (0, 1, 2)
-HYBRIDS = ("physics", "health", "similarity", "similarity-rel")
+HYBRIDS = ("physics", "health", "similarity")  # their columns always (the committed tables')
+LATER_HYBRIDS = ("similarity-rel",)  # their columns where they ran
+#: RMSE by phase (:mod:`prognostics.metrics`) -> its column in ``study_runs.csv``
+PHASES = {"before onset": "before_onset", "after onset": "after_onset",
+          "RUL <= 30": "rul_30"}
 #: comparisons fixed before their test fleets were scored (the docstring): (a, b) is a - b
 COMPARISONS = (("similarity-rel", "similarity"),)
 
@@ -229,15 +234,18 @@ def runs_table(runs: list[dict]) -> pd.DataFrame:
         return {"within_0.5": al["fraction_within"]["0.5"] if al else np.nan,
                 "ra_0.5": al["relative_accuracy"]["0.5"] if al else np.nan}
 
+    def phases(v: dict) -> dict:
+        return {col: v["phases"].get(k, np.nan) for k, col in PHASES.items()}
+
     rows = []
     for r in runs:
         if r["kind"] == "model":
             rows.append({"fleet": r["fleet"], "n": r["n"], "predictor": r["predictor"],
                          "rmse": r["ensemble"]["rmse"], "horizon": r["ensemble"]["horizon"],
-                         **life(r["ensemble"])})
+                         **life(r["ensemble"]), **phases(r["ensemble"])})
         else:
             rows += [{"fleet": r["fleet"], "n": r["n"], "predictor": f"floor: {k}",
-                      "rmse": v["rmse"], "horizon": v["horizon"], **life(v)}
+                      "rmse": v["rmse"], "horizon": v["horizon"], **life(v), **phases(v)}
                      for k, v in r["floors"].items()]
     return pd.DataFrame(rows)
 
@@ -258,20 +266,21 @@ def report(t: pd.DataFrame, results: Path) -> str:
         return "no runs yet"
     results.mkdir(parents=True, exist_ok=True)
     t.to_csv(results / "study_runs.csv", index=False, float_format="%.4g")
+    hybrids = [*HYBRIDS, *(h for h in LATER_HYBRIDS if h in set(t["predictor"]))]
     lines = ["# The many-fleet study (issue 30)", "",
              "`python benchmarks/health_study.py` (its docstring). Test RMSE (every sample of "
              "the 6 test units, the seeds' mean prediction), mean over fleets; the difference "
              "hybrid - data-driven per fleet, mean and 95 % CI over fleets.", "",
              "| n units | fleets | " + " | ".join(sorted(t["predictor"].unique())) +
-             " | " + " | ".join(f"{h} - data-driven [95 % CI]" for h in HYBRIDS) + " |",
-             "|---" * (2 + t["predictor"].nunique() + len(HYBRIDS)) + "|"]
-    curve = {(h, "data-driven"): [] for h in HYBRIDS}  # (a, b) -> points of a - b
+             " | " + " | ".join(f"{h} - data-driven [95 % CI]" for h in hybrids) + " |",
+             "|---" * (2 + t["predictor"].nunique() + len(hybrids)) + "|"]
+    curve = {(h, "data-driven"): [] for h in hybrids}  # (a, b) -> points of a - b
     for n, g in t.groupby("n"):
         p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
         cells = [f"{p[c].mean():.2f}" if c in p.columns else "-"
                  for c in sorted(t["predictor"].unique())]
         diffs = []
-        for h in HYBRIDS:
+        for h in hybrids:
             cell, ci = paired(p, h, "data-driven")
             diffs.append(cell)
             if ci:
@@ -279,7 +288,7 @@ def report(t: pd.DataFrame, results: Path) -> str:
         lines.append(f"| {n} | {p.shape[0]} | " + " | ".join(cells) + " | " +
                      " | ".join(diffs) + " |")
     floors = [f for f in ("floor: hi-lookup", "floor: life") if f in set(t["predictor"])]
-    pairs = [(h, f) for h in HYBRIDS for f in floors]
+    pairs = [(h, f) for h in hybrids for f in floors]
     lines += ["", "What a network adds to the floors: the hybrid minus each floor per fleet, "
               "mean and 95 % CI over fleets (< 0: the network is better).", "",
               "| n units | " + " | ".join(f"{h} - {f}" for h, f in pairs) + " |",
@@ -302,6 +311,17 @@ def report(t: pd.DataFrame, results: Path) -> str:
                 if ci:
                     curve.setdefault((a, b), []).append((n, *ci))
             lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    cols = [c for c in PHASES.values() if c in t.columns]
+    by_phase = t.dropna(subset=cols) if cols else t.iloc[:0]
+    if not by_phase.empty:
+        lines += ["", "RMSE by phase (before and after the onset of fault, the last 30 cycles), "
+                  "mean over the fleets whose runs recorded it (runs cached before it was added "
+                  "did not).", "",
+                  "| n units | predictor | fleets | " + " | ".join(PHASES) + " |",
+                  "|---" * (3 + len(PHASES)) + "|"]
+        for (n, pred), g in by_phase.groupby(["n", "predictor"]):
+            lines.append(f"| {n} | {pred} | {g['fleet'].nunique()} | " +
+                         " | ".join(f"{g[c].mean():.2f}" for c in PHASES.values()) + " |")
     lines += ["", "Accuracy over life at λ = 0.5 (half-way from a unit's first prediction to its "
               "failure; Saxena et al. 2010): the fraction of test units whose prediction lies "
               "within ±20 % of the true RUL, and the mean relative accuracy; mean over the "
@@ -331,7 +351,8 @@ def report(t: pd.DataFrame, results: Path) -> str:
     ax.minorticks_off()
     ax.set_xlabel("training units")
     ax.set_title(f"95 % intervals over {t['fleet'].nunique()} fleets")
-    ax.set_ylabel("test RMSE difference [cycles] (< 0: the first is better)")
+    ax.set_ylabel("test RMSE difference [cycles] (< 0: "
+                  + ("the first is better)" if present else "physics helps)"))
     if ax.get_legend_handles_labels()[0]:  # (no data-driven run and no comparison: no curve)
         ax.legend()
     fig.tight_layout()
@@ -370,7 +391,8 @@ def main(argv=None) -> int:
         for seed in parse_range(a.fleets):
             run_fleet(a.work, seed, a.rate, sizes, cache, done, predictors)
     fleets = set(parse_range(a.fleets))  # the tables cover the fleets asked for
-    t = runs_table([r for r in read_runs(cache) if r["fleet"] in fleets])
+    t = runs_table([r for r in read_runs(cache) if r["fleet"] in fleets and (
+        r["kind"] == "floors" or r["predictor"] in predictors)])  # ... and predictors
     committed = COMMITTED / "study_runs.csv"
     if t.empty and a.report and committed.is_file():  # no cache here: the committed table
         print(f"no runs in {cache}: the tables from {committed}", file=sys.stderr)

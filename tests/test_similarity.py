@@ -309,8 +309,8 @@ def test_on_the_health_index_relative_to_early_life_a_units_initial_level_does_n
     """``inputs="HI_hat_rel"``: the library and the match read the health index minus its
     mean over the unit's first flights (:mod:`prognostics.flights`), so a test unit whose θ̂
     sits lower by a constant from its first flight on (initial wear; the stand-in index is
-    linear there) gets the same predictions, while the model on the absolute ``HI_hat``
-    reads the lower level as less life."""
+    linear there) gets the same predictions, a unit that degrades faster does not, and the
+    model on the absolute ``HI_hat`` reads the lower level as less life."""
     import prognostics.baseline as baseline
     from prognostics.ensemble import fit
     from prognostics.train_config import TrainConfig
@@ -325,8 +325,10 @@ def test_on_the_health_index_relative_to_early_life_a_units_initial_level_does_n
     worn = test.assign(HPT_eff_mod_hat=test["HPT_eff_mod_hat"] - 0.01)
     rel = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat_rel", window=5))
     assert rel.columns == ("HI_hat_rel",)
-    np.testing.assert_allclose(rel.predict(worn)["RUL_pred"], rel.predict(test)["RUL_pred"],
-                               rtol=0, atol=1e-9)
+    base = rel.predict(test)["RUL_pred"]
+    np.testing.assert_allclose(rel.predict(worn)["RUL_pred"], base, rtol=0, atol=1e-9)
+    faster = test.assign(HPT_eff_mod_hat=1.5 * test["HPT_eff_mod_hat"])  # the change, not the level
+    assert not np.allclose(rel.predict(faster)["RUL_pred"], base)
     absolute = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5))
     moved = absolute.predict(worn)["RUL_pred"] - absolute.predict(test)["RUL_pred"]
     assert (moved < 0).mean() > 0.5
