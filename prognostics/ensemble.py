@@ -150,6 +150,7 @@ class RulModel:
             raise InputError(f"{source}: missing input column(s) {', '.join(missing)} that the "
                              "model was trained on")
         check_table(frame, self.columns, source, target=False)
+        _warn_late_start(frame, self.columns, source)
         x = self.scaler.transform_frame(frame, source=source)
         _warn_far_outside(x, self.scaler, source)
         if self.library is not None:
@@ -238,6 +239,23 @@ class RulModel:
                           stacklevel=2)
         pred = self.predict(df, units, device, source, progress)
         return evaluate_predictions(pred), pred
+
+
+def _warn_late_start(frame: pd.DataFrame, columns: Sequence[str], source: str) -> None:
+    """Inputs relative to a unit's early life (``<q>_hat_rel``, ``HI_hat_rel``:
+    :mod:`.flights`) take its first flights in the table as that early life: a unit whose
+    first cycle is not 1 did not enter the table at entry into service, so its reference is
+    mid-life health and the relative inputs understate its loss; warned, naming the units."""
+    if not any(c.endswith("_rel") for c in columns):
+        return
+    first = frame.groupby("unit")["cycle"].min()
+    late = first[first > 1]
+    if len(late):
+        names = ", ".join(f"{int(u)} (cycle {int(c)})" for u, c in late.iloc[:10].items())
+        more = f" and {len(late) - 10} more" if len(late) > 10 else ""
+        warnings.warn(f"{source}: unit(s) {names}{more} start after cycle 1: inputs relative "
+                      "to early life take their first flights here as their early life",
+                      UserWarning, stacklevel=3)
 
 
 #: A scaled input this far outside [-1, 1] (the training range) is one training range beyond

@@ -332,3 +332,27 @@ def test_on_the_health_index_relative_to_early_life_a_units_initial_level_does_n
     absolute = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5))
     moved = absolute.predict(worn)["RUL_pred"] - absolute.predict(test)["RUL_pred"]
     assert (moved < 0).mean() > 0.5
+
+
+def test_a_unit_that_starts_after_cycle_1_is_a_warning_for_inputs_relative_to_early_life(
+        make_features, monkeypatch):
+    """A unit whose table starts in mid-life: its first flights there are taken as its early
+    life, so a model on ``HI_hat_rel`` warns, naming the unit and its first cycle; the same
+    table with the absolute index does not."""
+    from prognostics.ensemble import fit
+    from prognostics.train_config import TrainConfig
+
+    _linear_hi(monkeypatch)
+    df, meta = make_features()
+    test = df[df.unit.isin(meta["test_units"])]
+    late = test[(test.unit != 5) | (test.cycle >= 4)]
+    rel = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat_rel", window=5))
+    with pytest.warns(UserWarning, match=r"unit\(s\) 5 \(cycle 4\) start after cycle 1"):
+        rel.predict(late)
+    absolute = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        absolute.predict(late)
+        rel.predict(test)
