@@ -260,6 +260,24 @@ def paired(p: pd.DataFrame, a: str, b: str) -> tuple[str, tuple | None]:
     return f"{m:+.2f} [{lo:+.2f}, {hi:+.2f}] ({len(d)})", (m, lo, hi)
 
 
+def differences(t: pd.DataFrame, pairs: list[tuple[str, str]], title: str,
+                curve: dict | None = None) -> list[str]:
+    """The Markdown table of ``a - b`` per fleet (:func:`paired`) for each pair and ``n``,
+    under ``title``; each interval also joins ``curve[a, b]`` when a curve is given."""
+    lines = ["", title, "", "| n units | " + " | ".join(f"{a} - {b}" for a, b in pairs) + " |",
+             "|---" * (1 + len(pairs)) + "|"]
+    for n, g in t.groupby("n"):
+        p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
+        cells = []
+        for a, b in pairs:
+            cell, ci = paired(p, a, b)
+            cells.append(cell)
+            if ci and curve is not None:
+                curve.setdefault((a, b), []).append((n, *ci))
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def report(t: pd.DataFrame, results: Path) -> str:
     """Write ``study.md``, ``study.png`` and ``study_runs.csv`` from :func:`runs_table`."""
     if t.empty:
@@ -288,29 +306,14 @@ def report(t: pd.DataFrame, results: Path) -> str:
         lines.append(f"| {n} | {p.shape[0]} | " + " | ".join(cells) + " | " +
                      " | ".join(diffs) + " |")
     floors = [f for f in ("floor: hi-lookup", "floor: life") if f in set(t["predictor"])]
-    pairs = [(h, f) for h in hybrids for f in floors]
-    lines += ["", "What a network adds to the floors: the hybrid minus each floor per fleet, "
-              "mean and 95 % CI over fleets (< 0: the network is better).", "",
-              "| n units | " + " | ".join(f"{h} - {f}" for h, f in pairs) + " |",
-              "|---" * (1 + len(pairs)) + "|"]
-    for n, g in t.groupby("n"):
-        p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
-        lines.append(f"| {n} | " + " | ".join(paired(p, h, f)[0] for h, f in pairs) + " |")
+    lines += differences(t, [(h, f) for h in hybrids for f in floors],
+                         "What a network adds to the floors: the hybrid minus each floor per "
+                         "fleet, mean and 95 % CI over fleets (< 0: the network is better).")
     present = [(a, b) for a, b in COMPARISONS if {a, b} <= set(t["predictor"])]
     if present:
-        lines += ["", "Comparisons fixed in advance (the script's docstring): a - b per fleet, "
-                  "mean and 95 % CI over fleets (< 0: a is better).", "",
-                  "| n units | " + " | ".join(f"{a} - {b}" for a, b in present) + " |",
-                  "|---" * (1 + len(present)) + "|"]
-        for n, g in t.groupby("n"):
-            p = g.pivot_table(index="fleet", columns="predictor", values="rmse")
-            cells = []
-            for a, b in present:
-                cell, ci = paired(p, a, b)
-                cells.append(cell)
-                if ci:
-                    curve.setdefault((a, b), []).append((n, *ci))
-            lines.append(f"| {n} | " + " | ".join(cells) + " |")
+        lines += differences(t, present, "Comparisons fixed in advance (the script's "
+                             "docstring): a - b per fleet, mean and 95 % CI over fleets "
+                             "(< 0: a is better).", curve)
     cols = [c for c in PHASES.values() if c in t.columns]
     by_phase = t.dropna(subset=cols) if cols else t.iloc[:0]
     if not by_phase.empty:
