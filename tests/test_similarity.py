@@ -356,3 +356,19 @@ def test_a_unit_that_starts_after_cycle_1_is_a_warning_for_inputs_relative_to_ea
         warnings.simplefilter("error")
         absolute.predict(late)
         rel.predict(test)
+
+
+def test_the_pipeline_config_gives_the_similarity_model_its_own_default_inputs(tmp_path):
+    """``[train] model = "similarity"`` without ``inputs`` takes the model's default, as
+    ``hyprog train --model similarity`` does; inputs given are kept, and another model keeps
+    the pipeline's default input sets."""
+    from prognostics.train_config import DEFAULT_INPUTS
+    from workflows.pipeline.config import load_config
+
+    def inputs(toml):
+        (tmp_path / "c.toml").write_text(toml)
+        return load_config(tmp_path / "c.toml")["train"]["inputs"]
+
+    assert inputs('[train]\nmodel = "similarity"\n') == [DEFAULT_INPUTS["similarity"]]
+    assert inputs('[train]\nmodel = "similarity"\ninputs = ["HI_hat"]\n') == ["HI_hat"]
+    assert inputs('[train]\nmodel = "tcn"\n') == ["data-driven", "hybrid"]

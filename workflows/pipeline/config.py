@@ -73,7 +73,8 @@ table            key                  meaning [default]
                                       and ``trend``, or ``similarity`` (no network; inputs
                                       ``["HI_hat_rel"]`` or ``["HI_hat"]``) [cnn]
                  ``inputs``           input sets, each trained and evaluated
-                                      [["data-driven", "hybrid"]]
+                                      [["data-driven", "hybrid"]; ``similarity``:
+                                      ``["HI_hat_rel"]``, as ``hyprog train``]
                  ``ensemble``         networks per input set (seeds seed .. seed+N-1) [1]
                  ``epochs``           maximum epochs [6: short, so that the default run takes
                                       a few minutes on 2 cores; the paper's are 30 (CNN) and
@@ -106,7 +107,7 @@ from calibration.base import ESTIMATORS
 from calibration.estimation_setup import CalibrationSetup
 from engine_model.validation import InputError
 from prognostics.choices import LIBRARY_MODELS
-from prognostics.train_config import TrainConfig
+from prognostics.train_config import DEFAULT_INPUTS, TrainConfig
 
 _INT, _FLOAT, _STR, _BOOL = int, float, str, bool
 
@@ -339,6 +340,10 @@ def merge(config: dict, given: dict, source: str = "config") -> dict:
                                  f"{', '.join(SCHEMA[table])}")
             kind = SCHEMA[table][key][0]
             out[table][key] = _check_value(f"{source}: [{table}] {key}", kind, value)
+    train = given.get("train", {})
+    if "model" in train and "inputs" not in train and out["train"]["model"] in DEFAULT_INPUTS:
+        # a model with inputs of its own gets them, as ``hyprog train --model`` does
+        out["train"]["inputs"] = [DEFAULT_INPUTS[out["train"]["model"]]]
     check_values(out, source)
     return out
 
