@@ -94,6 +94,8 @@ TRUTH_INPUTS = ("health_true",)
 #: predictor on the health index relative to early life), not these folds: scored on them
 #: for the record, never chosen by them, and scored once on the test units
 STUDY_CHOICE = ("similarity", "hi_rel", 10)
+#: every candidate the benchmark knows, in the table's order
+ALL_CANDIDATES = (*CANDIDATES, STUDY_CHOICE)
 #: a library candidate's inputs -> its health-index column
 LIBRARY_COLUMNS = {"hi": "HI_hat", "hi_rel": "HI_hat_rel"}
 FOLDS, FOLD_SEED = 3, 0
@@ -218,7 +220,7 @@ def main(argv=None) -> int:
         stages = [("cv", k, f.train, f.held_out, cv_seeds) for k, f in enumerate(folds)]
         stages.append(("test", 0, dev, test, test_seeds))
         for stage, k, train_units, held, seeds in stages:
-            candidates = [*CANDIDATES, STUDY_CHOICE]
+            candidates = ALL_CANDIDATES
             if stage == "test" and not a.all_on_test:  # the test units meet the choices only
                 chosen = chosen_on_cv(list(done.values()))
                 candidates = [c for c in candidates
@@ -298,6 +300,12 @@ def consistent(runs: list[dict], fingerprint: str | None = None) -> list[dict]:
     return runs
 
 
+def label(candidate: tuple) -> str:
+    """A candidate ``(model, inputs, window)`` as the table names it."""
+    model, inputs, window = candidate
+    return f"{model} {inputs} (window {window})"
+
+
 def chosen_on_cv(runs: list[dict]) -> tuple | None:
     """The candidate ``(model, inputs, window)`` the protocol chooses: the lowest mean CV RMSE
     (the seeds' mean prediction, every fold run) among those that read θ̂ (not data-driven,
@@ -318,24 +326,22 @@ def report(runs: list[dict], results: Path, cache: Path) -> None:
 
     runs = consistent(runs)
     pick = chosen_on_cv(runs)
-    chosen = None if pick is None else f"{pick[0]} {pick[1]} (window {pick[2]})"
-    study = f"{STUDY_CHOICE[0]} {STUDY_CHOICE[1]} (window {STUDY_CHOICE[2]})"
+    chosen = None if pick is None else label(pick)
+    study = label(STUDY_CHOICE)
     has_study = any(r["kind"] == "model" and (r["model"], r["inputs"], r["window"])
                     == STUDY_CHOICE for r in runs)
     cv = [r for r in runs if r["stage"] == "cv"]
     test = [r for r in runs if r["stage"] == "test"]
     rows = []
     names = sorted({(r["model"], r["inputs"], r["window"]) for r in runs if r["kind"] == "model"},
-                   key=lambda t: [*CANDIDATES, STUDY_CHOICE].index(t)
-                   if t in (*CANDIDATES, STUDY_CHOICE) else 99)
+                   key=lambda t: ALL_CANDIDATES.index(t) if t in ALL_CANDIDATES else 99)
     for name in names:
-        model, inputs, window = name
         folds = [r for r in cv if r["kind"] == "model" and
                  (r["model"], r["inputs"], r["window"]) == name]
         t = [r for r in test if r["kind"] == "model" and
              (r["model"], r["inputs"], r["window"]) == name]
-        row = {"predictor": f"{model} {inputs} (window {window})", "truth": inputs in
-               TRUTH_INPUTS, "cv_folds": len(folds)}
+        row = {"predictor": label(name), "truth": name[1] in TRUTH_INPUTS,
+               "cv_folds": len(folds)}
         if folds:
             row["cv_rmse"] = float(np.mean([r["ensemble"]["rmse"] for r in folds]))
         if t:
@@ -373,14 +379,13 @@ def report(runs: list[dict], results: Path, cache: Path) -> None:
              "Test: trained on all development units, evaluated once on units "
              f"{', '.join(map(str, held))}; 'seeds' is the mean ± std of the single-seed "
              "models, the other columns are the seeds' mean prediction.", "",
-             f"Chosen on CV (lowest CV RMSE among the hybrid candidates"
-             f"{', the study' + chr(39) + 's choice excluded' if has_study else ''}): "
-             f"**{chosen}**. " +
-             (f"Chosen by the many-fleet study, not by these folds: **{study}** (its CV RMSE "
-              "for the record). The protocol scores on the test units only these two, the "
-              if has_study else "The protocol scores on the test units only the chosen "
-              "candidate, the ") +
-             "data-driven reference and the floors; any other row's test figures were made "
+             "Chosen on CV (lowest CV RMSE among the hybrid candidates"
+             + (", the study's choice excluded" if has_study else "") + f"): **{chosen}**. "
+             + (f"Chosen by the many-fleet study, not by these folds: **{study}** (its CV "
+                "RMSE for the record). The protocol scores on the test units only these two, "
+                if has_study else "The protocol scores on the test units only the chosen "
+                "candidate, ")
+             + "the data-driven reference and the floors; any other row's test figures were made "
              "with `--all-on-test`: post hoc, not results of the protocol, and marked "
              "(post hoc).", "",
              "| predictor | CV RMSE | test RMSE, seeds | test RMSE | before onset | after onset "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -350,8 +351,6 @@ def test_a_unit_that_starts_after_cycle_1_is_a_warning_for_inputs_relative_to_ea
     with pytest.warns(UserWarning, match=r"unit\(s\) 5 \(cycle 4\) start after cycle 1"):
         rel.predict(late)
     absolute = fit(df, meta, TrainConfig(model="similarity", inputs="HI_hat", window=5))
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         absolute.predict(late)
