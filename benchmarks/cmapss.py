@@ -90,16 +90,31 @@ def hyprog(*args: str) -> None:
     common.hyprog(*args, quiet=True, capture=True)
 
 
-def noise_options(noise: str, model_error: float) -> tuple[list[str], str]:
+def model_error_option(text: str) -> float | str:
+    """``--model-error``: a relative std, or ``consistent`` (the one at which the filter's
+    normalised innovations have unit variance over the whole subset:
+    :mod:`calibration.consistency`; it reads the sensors of every unit, no RUL)."""
+    if text == "consistent":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number nor 'consistent': {text!r}") from None
+
+
+def noise_options(noise: str, model_error: float | str) -> tuple[list[str], str]:
     """``hyprog calibrate``'s noise options and the label they add (none by default)."""
     args = [] if noise == "model" else ["--noise", noise]
-    args += [] if model_error == 0 else ["--model-error", f"{model_error:g}"]
+    if model_error == "consistent":
+        args += ["--model-error", "consistent"]
+    elif model_error != 0:
+        args += ["--model-error", f"{model_error:g}"]
     return args, " ".join(args)
 
 
 def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "default",
                    adapted: Path | None = None, noise: str = "model",
-                   model_error: float = 0.0) -> Path:
+                   model_error: float | str = 0.0) -> Path:
     """Import ``subset``'s training file into ``work`` (once) and calibrate it
     (:func:`calibrated`); the feature table's path."""
     raw = imported(data_dir, work, subset, capture=True)
@@ -107,7 +122,7 @@ def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "defau
 
 
 def calibrated(raw: Path, params: str = "default", adapted: Path | None = None,
-               noise: str = "model", model_error: float = 0.0) -> Path:
+               noise: str = "model", model_error: float | str = 0.0) -> Path:
     """The imported table ``raw`` calibrated beside it (once) with ``hyprog calibrate --params
     params`` (and ``--model-effects adapted``, ``--noise``, ``--model-error``), in a folder
     named after ``raw`` and the variant; its path."""
@@ -347,8 +362,9 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", choices=("model", "data"), default="model",
                     help="the noise in the calibration's R (hyprog calibrate --noise; runs "
                     "labelled with it when not 'model')")
-    ap.add_argument("--model-error", type=float, default=0.0,
-                    help="hyprog calibrate --model-error (runs labelled with it when not 0)")
+    ap.add_argument("--model-error", type=model_error_option, default=0.0,
+                    help="hyprog calibrate --model-error: a relative std or 'consistent' "
+                    "(runs labelled with it when not 0)")
     ap.add_argument("--pool", default="",
                     help="subsets whose training units join every fold's training units of "
                     "the other subsets (same calibration variant; held-out units and floors "
