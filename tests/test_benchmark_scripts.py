@@ -8,6 +8,8 @@ import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
+import pytest
+
 from .conftest import REPO, load_script
 
 BENCHMARKS = REPO / "benchmarks"
@@ -76,6 +78,23 @@ def test_the_scripts_key_with_the_shared_function():
     health = load_script(BENCHMARKS / "health_features.py", "health_features_keys")
     assert cmapss.run_key(BODY) == KEY_16
     assert health.run_key(BODY, health.KEY_LENGTH) == KEY_20
+
+
+def test_cmapss_model_error_is_a_number_or_consistent():
+    """``--model-error``: a relative std or ``consistent``, passed to ``hyprog calibrate`` as
+    given and named in the run's label (and its features folder); 0 adds nothing."""
+    import argparse
+
+    cmapss = load_script(BENCHMARKS / "cmapss.py", "cmapss_benchmark_model_error")
+    assert cmapss.model_error_option("0.003") == 0.003
+    assert cmapss.model_error_option("consistent") == "consistent"
+    with pytest.raises(argparse.ArgumentTypeError, match="'often'"):
+        cmapss.model_error_option("often")
+    assert cmapss.noise_options("data", "consistent") == (
+        ["--noise", "data", "--model-error", "consistent"],
+        "--noise data --model-error consistent")
+    assert cmapss.noise_options("data", 0.003)[1] == "--noise data --model-error 0.003"
+    assert cmapss.noise_options("model", 0.0) == ([], "")
 
 
 def test_parse_range_reads_ranges_and_lists():
