@@ -175,8 +175,8 @@ MAP_EFF = 0.05
 
 def test_speed_dependent_map_error_names_the_component(model):
     names = STEADY_DEFAULT + MAP_CANDIDATES + SENSOR_DEFAULT
-    truth = EngineModel(design=model.design, compiled=False, effects=steady_effects(
-        names, {"map_scaling_HPC": {"eff_1": MAP_EFF}}))  # the data only: not compiled
+    truth = EngineModel(design=model.design, effects=steady_effects(
+        names, {"map_scaling_HPC": {"eff_1": MAP_EFF}}))
     eff = parse_effect_spec(f"map_scaling:component=HPC,eff_1={MAP_EFF}")
     df, _, _ = fleet.simulate("tiny", units=[1], seed=11, model=truth, effects=[eff])
     d = discover([df], SETUP, DiscoverOptions(drift=0.01, candidates=names, **FAST),
