@@ -183,12 +183,14 @@ def test_interrupted_run_resumes_to_the_same_numbers(first_run, config, tmp_path
     """SIGINT while the first network trains: exit 130 and the line ``error: interrupted``, no
     temporary, lock or half-written model left; the rerun redoes training only and its
     metrics.json equals the uninterrupted run's byte for byte (same seed, same numbers).
+    The run starts from a copy of the uninterrupted run's stages before training, which are
+    not run again; that a fresh run's stages reproduce their bytes in another process is
+    tested by the interrupt tests of simulate and calibrate (tests/test_interrupts.py).
 
     A SIGINT whose exception a finalizer drops ("Exception ignored") is raised again by the
     entry point (cli.common.terminate_as_exit), so one attempt must give exit 130."""
     out = tmp_path / "b"
-    # the first run's copy without its train stage and what follows it (the stages before
-    # training are the same bytes as a fresh run's, and are skipped)
+    # the first run's copy without its train stage and what follows it
     shutil.copytree(first_run[0], out)  # markers hold paths relative to the folder
     for stage in ("train", "evaluate", "report"):
         for folder in out.glob(f"stages/{stage}-*"):
