@@ -292,3 +292,38 @@ def test_processes_that_need_one_library_at_once_compile_it_once(tmp_path):
     assert got == [9.0, 9.0]
     assert log.read_text().split() == ["run"]
     assert len(list(cache.glob("hyprog_locked_test_*.so"))) == 1
+
+
+def _load_or_build_tiny_table(path: str, log: str) -> float:
+    """In a fresh process: a one-node starting-guess table from ``path``, built (slowly,
+    logging it) when missing."""
+    import time
+    from pathlib import Path
+
+    import numpy as np
+
+    from engine_model.solver.guess_table import GuessTable
+
+    def build():
+        with open(log, "a") as fh:
+            fh.write("build\n")
+        time.sleep(2.0)
+        return GuessTable(np.full((1, 1, 1, 1, 2), 3.0), np.zeros((1, 1, 1, 1, 2, 1)), 1000.0,
+                          abs, abs)
+
+    tab = GuessTable.load_or_build(Path(path), build, 1000.0, abs, abs)
+    return float(tab.table.sum())
+
+
+def test_processes_that_need_the_guess_table_at_once_build_it_once(tmp_path):
+    """Two processes missing the starting-guess table: one builds it (here in 2 s), the other
+    waits on the lock and loads it (about 30 s of solves for the real table; before, both
+    built it)."""
+    import multiprocessing
+
+    log, path = tmp_path / "calls.log", tmp_path / "table_test.npz"
+    with multiprocessing.get_context("spawn").Pool(2) as pool:
+        got = pool.starmap(_load_or_build_tiny_table, [(str(path), str(log))] * 2)
+    assert got == [6.0, 6.0]
+    assert log.read_text().split() == ["build"]
+    assert path.is_file()

@@ -185,7 +185,8 @@ DATA = "data_samples"  # packaged data: imports nothing of hyprog, anyone may im
 CORE = {"engine_model", "engine_model.channels", "engine_model.units", "engine_model.validation",
         "engine_model.lazy_names"}  # lazy_names: the packages' PEP 562 exports, no imports
 RUNTIME_GENERIC = {f"engine_model.runtime.{m}" for m in ("critical", "atomic", "ownership",
-                                                         "lock")} | {"engine_model.runtime"}
+                                                         "lock", "build_lock")} | {
+    "engine_model.runtime"}
 
 
 def module_files() -> dict[str, tuple[Path, bool]]:

@@ -10,10 +10,11 @@ does so for several libraries at once, their compilers running side by side (a m
 libraries: 41 s -> 25 s for a first build on 2 cores, 2026-11-28). The cache directory is
 ``$HYPROG_CACHE`` or ``~/.cache/hyprog``. Files are written atomically
 (:mod:`engine_model.runtime.atomic`), so concurrent processes never load a half-written
-library, and a library is built under an exclusive lock (:func:`_building`), so that of
-several processes that need the same library at once (pytest-xdist workers, the pipeline's
-worker processes) one compiles it and the others wait and load it, instead of each
-spending the same 20-40 s of the compiler.
+library, and a library is built under an exclusive lock
+(:func:`engine_model.runtime.build_lock.build_lock`), so that of several processes that need
+the same library at once (pytest-xdist workers, the pipeline's worker processes) one compiles
+it and the others wait and load it, instead of each spending the same 20-40 s of the
+compiler.
 """
 
 import hashlib
@@ -21,15 +22,16 @@ import os
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 
 from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.build_lock import build_lock
 from engine_model.runtime.ownership import OWNED_FILE
 
 CFLAGS = ("-fPIC", "-shared", "-fno-math-errno")
@@ -71,7 +73,7 @@ def compile_functions(name: str, functions: list[ca.Function], opt: str = "-O2",
         key = hashlib.sha256(src + _command(cc, opt, extra_flags, optional_flags)).hexdigest()[:16]
         lib = cache_dir() / f"{name}_{key}.so"
         if not lib.exists():
-            with _building(lib):
+            with build_lock(lib):
                 if not lib.exists():  # not built meanwhile by the process that held the lock
                     _compile(cc, name, src_path, lib, opt, extra_sources, extra_flags,
                              optional_flags)
@@ -111,7 +113,7 @@ def compile_keyed_all(jobs: list[KeyedLibrary]) -> list[dict[str, ca.Function]]:
     the libraries missing from the cache are built one after the other (CasADi's graph work
     and code generation stay in this thread), and each library's compiler starts as soon as
     its source is written, so that a model's two libraries compile in about the time of the
-    larger one on two cores. The locks (:func:`_building`) are taken in the order of
+    larger one on two cores. The locks (:func:`build_lock`) are taken in the order of
     ``jobs``, so processes asking for the same libraries never wait on each other in a
     circle."""
     cc = _compiler_or_fail()
@@ -120,7 +122,7 @@ def compile_keyed_all(jobs: list[KeyedLibrary]) -> list[dict[str, ca.Function]]:
     if missing:
         with ExitStack() as held:
             for _, lib in missing:
-                held.enter_context(_building(lib))
+                held.enter_context(build_lock(lib))
             tmp = held.enter_context(tempfile.TemporaryDirectory())
             with ThreadPoolExecutor(max_workers=len(missing)) as pool:
                 running = []
@@ -150,26 +152,6 @@ def _keyed_path(cc: str, job: KeyedLibrary) -> Path:
     full = hashlib.sha256(material + _command(cc, job.opt, job.extra_flags,
                                               job.optional_flags))
     return cache_dir() / f"{job.name}_k{full.hexdigest()[:16]}.so"
-
-
-@contextmanager
-def _building(lib: Path) -> Iterator[None]:
-    """Hold an exclusive lock on ``.<lib name>.building`` in the cache for the block (module
-    docstring). ``fcntl.flock``: the kernel releases it when its process ends, however it
-    ends, so a lock is never stale; the lock file itself stays (a few bytes, reused). Where
-    there is no ``fcntl`` (Windows) the block runs unlocked: two processes may then compile
-    the same library, each writing it atomically."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover
-        yield
-        return
-    with open(lib.with_name(f".{lib.name}.building"), "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _compiler_or_fail() -> str:

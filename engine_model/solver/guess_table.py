@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from engine_model.runtime.atomic import atomic_output
+from engine_model.runtime.build_lock import build_lock
 from engine_model.runtime.ownership import OWNED_FILE
 from engine_model.units import R_PER_K
 
@@ -105,16 +106,27 @@ class GuessTable:
                       nf_demand_pct: Callable, flight_weight: Callable) -> GuessTable:
         """The table cached at ``path`` (an ``.npz``), else ``build()`` and cache it (written
         atomically, :mod:`engine_model.runtime.atomic`: concurrent processes never read half a
-        file)."""
-        if path.exists():
+        file). Built under :func:`~engine_model.runtime.build_lock.build_lock`: of several
+        processes that miss it at once, one builds it and the others wait and load it."""
+
+        def load() -> GuessTable | None:
+            if not path.exists():
+                return None
             try:
                 z = np.load(path)
                 return cls(z["table"], z["dth"], t40_des_k, nf_demand_pct, flight_weight)
             except (OSError, KeyError, ValueError):
-                pass
-        tab = build()
-        with atomic_output(path, OWNED_FILE) as staged, open(staged, "wb") as fh:
-            np.savez(fh, table=tab.table, dth=tab.dth)
+                return None  # unreadable: built again and replaced
+
+        tab = load()
+        if tab is not None:
+            return tab
+        with build_lock(path):
+            tab = load()  # built meanwhile by the process that held the lock
+            if tab is None:
+                tab = build()
+                with atomic_output(path, OWNED_FILE) as staged, open(staged, "wb") as fh:
+                    np.savez(fh, table=tab.table, dth=tab.dth)
         return tab
 
     @staticmethod
