@@ -117,12 +117,14 @@ def test_bad_input_is_refused(library):
 
 # --- the trained model: hyprog train --model similarity -------------------------------------
 
-def _linear_hi(monkeypatch):
-    """The health index of test_flights' stand-in (no engine model)."""
+def _linear_hi(monkeypatch, index=None):
+    """The health index of test_flights' stand-in (no engine model), or of ``index`` (a
+    subclass of it)."""
     import prognostics.baseline as baseline
     from tests.test_flights import LinearHI
 
-    monkeypatch.setattr(baseline, "engine_health_index", lambda effects=(): LinearHI())
+    cls = index or LinearHI
+    monkeypatch.setattr(baseline, "engine_health_index", lambda effects=(): cls())
 
 
 def test_the_trained_model_is_the_library_of_its_flights_capped_and_round_trips(
@@ -312,7 +314,6 @@ def test_on_the_health_index_relative_to_early_life_a_units_initial_level_does_n
     sits lower by a constant from its first flight on (initial wear; the stand-in index is
     linear there) gets the same predictions, a unit that degrades faster does not, and the
     model on the absolute ``HI_hat`` reads the lower level as less life."""
-    import prognostics.baseline as baseline
     from prognostics.ensemble import fit
     from prognostics.train_config import TrainConfig
     from tests.test_flights import LinearHI
@@ -320,7 +321,7 @@ def test_on_the_health_index_relative_to_early_life_a_units_initial_level_does_n
     class Linear(LinearHI):  # every margin 1 + 20 sum(θ): the index linear in θ everywhere
         A = dict.fromkeys(LinearHI.A, 20.0)
 
-    monkeypatch.setattr(baseline, "engine_health_index", lambda effects=(): Linear())
+    _linear_hi(monkeypatch, Linear)
     df, meta = make_features()
     test = df[df.unit.isin(meta["test_units"])]
     worn = test.assign(HPT_eff_mod_hat=test["HPT_eff_mod_hat"] - 0.01)
