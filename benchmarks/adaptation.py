@@ -23,8 +23,9 @@ it changes: the model's error per condition, the health of new engines, FD001's 
    unadapted and the adapted model, R as in sections 2 and 3 (``--noise``,
    ``--model-error``): wall time, verdict, what it adds, and the residual before and after.
 
-Every figure is printed as a table and, with ``--results``, written there. ``--noise`` and
-``--model-error`` are ``hyprog calibrate``'s, for the calibrations of sections 2 and 3; by
+Every figure is printed as a table and, with ``--results``, written there (``--sections``:
+some of them only). ``--noise``, ``--model-error`` and ``--sensors`` are ``hyprog
+calibrate``'s, for the calibrations of sections 2 and 3; by
 default ``--noise data --model-error consistent``, how measured data are calibrated (the
 data's own noise and the model error at which the filter is consistent:
 calibration.consistency); ``--noise model --model-error 0`` gives the simulator's noise.
@@ -226,9 +227,19 @@ def main(argv=None) -> int:
     ap.add_argument("--model-error", default="consistent",
                     help="hyprog calibrate --model-error for sections 2 and 3 (a number or "
                     "'consistent')")
+    ap.add_argument("--sensors", default=None,
+                    help="hyprog calibrate --sensors for sections 2 and 3 (default: every "
+                    "measured channel x_s of the data; e.g. adding C-MAPSS's flow channels "
+                    "BPR,W31,W32, which need --noise data)")
+    ap.add_argument("--sections", default="1,2,3,4",
+                    help="the sections to run and report (the adapted model is made or "
+                    "loaded whichever; it is written to --results with section 1 only)")
     args = ap.parse_args(argv)
+    sections = {int(k) for k in args.sections.split(",")}
     noise = (() if args.noise == "model" else ("--noise", args.noise)) + (
         () if args.model_error in ("0", "0.0") else ("--model-error", args.model_error))
+    # the calibrations' options: discover (section 4) reads x_s with the same R
+    calibrate = noise + (() if args.sensors is None else ("--sensors", args.sensors))
     args.work.mkdir(parents=True, exist_ok=True)
     report = []
 
@@ -238,29 +249,56 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         hyprog("adapt", fd002, "--out", adapted, quiet=True)
         print(f"adapted in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
-    rec = json.loads(adapted.read_text())
-    report += ["## 1. The adaptation (FD002, every engine, cycles 1-20)", "",
-               f"Chosen, in order: {', '.join(rec['selection']['chosen']) or 'nothing'}; "
-               f"{rec['data']['units']} engines, {rec['data']['samples']} samples, "
-               f"{rec['seconds']:.0f} s.", "", error_tables(rec), ""]
-    report += [z_tables(rec, *condition_out_std(rec, fd002)), ""]
+    if 1 in sections:
+        report += section_1(json.loads(adapted.read_text()), fd002)
+    if 2 in sections:
+        report += section_2(args, fd002, adapted, calibrate)
+    if 3 in sections:
+        report += section_3(args, adapted, calibrate)
+    if 4 in sections:
+        report += section_4(args, fd002, adapted, noise)
+    text = "\n".join(report)
+    print(text)
+    if args.results is not None:
+        args.results.mkdir(parents=True, exist_ok=True)
+        (args.results / "adaptation.md").write_text(text + "\n")
+        if 1 in sections:
+            (args.results / "fd002-adapted.json").write_text(adapted.read_text())
+    return 0
 
-    report += ["## 2. Early-life health of the FD002 engines [%]", "",
-               f"Calibrated with {' '.join(noise) or 'the simulator noise'} (sections 2, 3).",
-               ""]
+
+def section_1(rec: dict, fd002: Path) -> list[str]:
+    """The adaptation's record ``rec``: its errors and each condition's error left out over
+    its std: the lines."""
+    return ["## 1. The adaptation (FD002, every engine, cycles 1-20)", "",
+            f"Chosen, in order: {', '.join(rec['selection']['chosen']) or 'nothing'}; "
+            f"{rec['data']['units']} engines, {rec['data']['samples']} samples, "
+            f"{rec['seconds']:.0f} s.", "", error_tables(rec), "",
+            z_tables(rec, *condition_out_std(rec, fd002)), ""]
+
+
+def section_2(args, fd002: Path, adapted: Path, noise: tuple) -> list[str]:
+    """Early-life theta_hat of the FD002 engines, unadapted and adapted: the lines."""
+    report = ["## 2. Early-life health of the FD002 engines [%]", "",
+              f"Calibrated with {' '.join(noise) or 'the simulator noise'} (sections 2, 3).",
+              ""]
     for params, label in ((None, "default parameters"), (FIVE, "the five of FD001")):
         tag = "default" if params is None else "five"
         for model, path in (("unadapted", None), ("adapted", adapted)):
             feat = calibrated(fd002, args.work, f"{tag}-{model}", params, path, noise=noise)
             tab = early_life_theta(feat)
             report += [f"{label}, {model} model:", "", markdown(tab), ""]
+    return report
 
-    report += ["## 3. FD001: change of theta_hat over life, median over units [%]", "",
-               f"Per unit, the mean of the last {LATE} cycles minus the mean of the first "
-               f"{EARLY}; units 1-20 (the issue's measurement) and every unit (each "
-               "calibration on its own units, so the consistent model error is estimated "
-               "on them); the interval is a 95 % bootstrap over units (2,000 draws, seed 0).",
-               ""]
+
+def section_3(args, adapted: Path, noise: tuple) -> list[str]:
+    """FD001's change of theta_hat over life, unadapted and adapted: the lines."""
+    report = ["## 3. FD001: change of theta_hat over life, median over units [%]", "",
+              f"Per unit, the mean of the last {LATE} cycles minus the mean of the first "
+              f"{EARLY}; units 1-20 (the issue's measurement) and every unit (each "
+              "calibration on its own units, so the consistent model error is estimated on "
+              "them); the interval is a 95 % bootstrap over units (2,000 draws, seed 0). "
+              f"Calibrated with {' '.join(noise) or 'the simulator noise'}.", ""]
     fd001 = imported(args.data_dir, args.work, "FD001")
     rows, intervals = {}, {}
     for units, tag in ((",".join(map(str, range(1, 21))), "units 1-20"), (None, "every unit")):
@@ -275,12 +313,16 @@ def main(argv=None) -> int:
     tab = pd.DataFrame(rows).T
     report += [markdown(tab, 3), "", "| | 95 % interval of the HPC signature |", "|---|---|"]
     report += [f"| {k} | {lo:.2f} - {hi:.2f} |" for k, (lo, hi) in intervals.items()]
-    report += [""]
-    report += ["## 4. hyprog discover on the FD002 engines' first 40 cycles", "",
-               f"R: {' '.join(noise) or 'the simulator noise'} (as sections 2, 3); chi2 per "
-               "degree of freedom of the whitened residual before and after the loop.", "",
-               "| model | samples | sensors | wall s | verdict | added | chi2/dof before | "
-               "after |", "|---|---|---|---|---|---|---|---|"]
+    return report + [""]
+
+
+def section_4(args, fd002: Path, adapted: Path, noise: tuple) -> list[str]:
+    """``hyprog discover`` on FD002's first 40 cycles, unadapted and adapted: the lines."""
+    report = ["## 4. hyprog discover on the FD002 engines' first 40 cycles", "",
+              f"R: {' '.join(noise) or 'the simulator noise'} (as sections 2, 3); chi2 per "
+              "degree of freedom of the whitened residual before and after the loop.", "",
+              "| model | samples | sensors | wall s | verdict | added | chi2/dof before | "
+              "after |", "|---|---|---|---|---|---|---|---|"]
     first40 = args.work / "fd002-first40"
     if not first40.exists():
         from engine_model.datasets import read_dataset, write_parquet
@@ -298,13 +340,7 @@ def main(argv=None) -> int:
                       f"{', '.join(d['diagnostics']['sensors'])} | {wall:.0f} | "
                       f"{d['verdict']} | {added} | {d['before']['chi2_per_dof']:.3g} | "
                       f"{d['after']['chi2_per_dof']:.3g} |")
-    text = "\n".join(report)
-    print(text)
-    if args.results is not None:
-        args.results.mkdir(parents=True, exist_ok=True)
-        (args.results / "adaptation.md").write_text(text + "\n")
-        (args.results / "fd002-adapted.json").write_text(adapted.read_text())
-    return 0
+    return report
 
 
 if __name__ == "__main__":

@@ -102,31 +102,36 @@ def model_error_option(text: str) -> float | str:
         raise argparse.ArgumentTypeError(f"not a number nor 'consistent': {text!r}") from None
 
 
-def noise_options(noise: str, model_error: float | str) -> tuple[list[str], str]:
-    """``hyprog calibrate``'s noise options and the label they add (none by default)."""
+def measurement_options(noise: str, model_error: float | str,
+                        sensors: str | None = None) -> tuple[list[str], str]:
+    """``hyprog calibrate``'s options for the measurement model (the noise, the model's own
+    error, the channels read) and the label they add (none by default)."""
     args = [] if noise == "model" else ["--noise", noise]
     if model_error == "consistent":
         args += ["--model-error", "consistent"]
     elif model_error != 0:
         args += ["--model-error", f"{model_error:g}"]
+    if sensors:
+        args += ["--sensors", sensors]
     return args, " ".join(args)
 
 
 def prepare_subset(data_dir: Path, work: Path, subset: str, params: str = "default",
                    adapted: Path | None = None, noise: str = "model",
-                   model_error: float | str = 0.0) -> Path:
+                   model_error: float | str = 0.0, sensors: str | None = None) -> Path:
     """Import ``subset``'s training file into ``work`` (once) and calibrate it
     (:func:`calibrated`); the feature table's path."""
     raw = imported(data_dir, work, subset, capture=True)
-    return calibrated(raw, params, adapted, noise, model_error)
+    return calibrated(raw, params, adapted, noise, model_error, sensors)
 
 
 def calibrated(raw: Path, params: str = "default", adapted: Path | None = None,
-               noise: str = "model", model_error: float | str = 0.0) -> Path:
+               noise: str = "model", model_error: float | str = 0.0,
+               sensors: str | None = None) -> Path:
     """The imported table ``raw`` calibrated beside it (once) with ``hyprog calibrate --params
-    params`` (and ``--model-effects adapted``, ``--noise``, ``--model-error``), in a folder
-    named after ``raw`` and the variant; its path."""
-    noise_args, noise_tag = noise_options(noise, model_error)
+    params`` (and ``--model-effects adapted``, ``--noise``, ``--model-error``,
+    ``--sensors``), in a folder named after ``raw`` and the variant; its path."""
+    noise_args, noise_tag = measurement_options(noise, model_error, sensors)
     feat = raw.parent / (f"{raw.name}-features" + ("" if params == "default" else f"-{params}")
                          + ("" if adapted is None else f"-adapted-{file_sha(adapted)[:8]}")
                          + ("" if not noise_tag else "-" + noise_tag.replace("--", "")
@@ -166,7 +171,7 @@ def evaluate_on_test_files(args, subset: str, model: str, overrides: dict) -> li
         hyprog("data", "import-cmapss", str(args.data_dir / f"train_{subset}.txt"), "--test",
                str(test), "--rul", str(rul), "--out", str(raw), "--overwrite")
     df, meta = read_dataset(calibrated(raw, args.params, args.model_effects, args.noise,
-                                       args.model_error))
+                                       args.model_error, args.sensors))
     test_units = [int(u) for u in meta["test_units"]]
     df, pooled = pooled_units(df, pooled_subsets(args, subset), args)
     df = unobservable_somewhere(df, subset)
@@ -319,7 +324,7 @@ def pooled_units(df, pool, args) -> tuple:
     frames, ids = [df], []
     for i, other in enumerate(pool):
         feat = prepare_subset(args.data_dir, args.work, other, args.params,
-                              args.model_effects, args.noise, args.model_error)
+                              args.model_effects, args.noise, args.model_error, args.sensors)
         extra, _ = read_dataset(feat)
         extra = extra.assign(unit=extra["unit"] + 100000 * (i + 1))
         frames.append(extra[[c for c in df.columns if c in extra.columns]])
@@ -365,6 +370,10 @@ def main(argv=None) -> int:
     ap.add_argument("--model-error", type=model_error_option, default=0.0,
                     help="hyprog calibrate --model-error: a relative std or 'consistent' "
                     "(runs labelled with it when not 0)")
+    ap.add_argument("--sensors", default=None,
+                    help="hyprog calibrate --sensors: the channels the calibration reads "
+                    "(e.g. adding C-MAPSS's flow channels BPR,W31,W32, which need --noise "
+                    "data; runs labelled with it)")
     ap.add_argument("--pool", default="",
                     help="subsets whose training units join every fold's training units of "
                     "the other subsets (same calibration variant; held-out units and floors "
@@ -409,7 +418,7 @@ def main(argv=None) -> int:
         overrides[k] = json.loads(v) if v[:1] in "0123456789-[{tfn" else v
     subsets = [s for s in args.subsets.split(",")
                if (args.data_dir / f"train_{s}.txt").exists()]
-    noise_tag = noise_options(args.noise, args.model_error)[1]
+    noise_tag = measurement_options(args.noise, args.model_error, args.sensors)[1]
     rows = []
     for subset in subsets:
         if args.report:
@@ -418,7 +427,7 @@ def main(argv=None) -> int:
                      and (r["kind"] == "floors" or r["model"] in args.models.split(","))]
             continue
         feat = prepare_subset(args.data_dir, args.work, subset, args.params, args.model_effects,
-                              args.noise, args.model_error)
+                              args.noise, args.model_error, args.sensors)
         df, meta = read_dataset(feat)
         units = sorted(df["unit"].unique().tolist())
         pool = pooled_subsets(args, subset)

@@ -51,7 +51,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from engine_model.channels import PAPER_THETA, THETA_NAMES, W_NAMES, XS_NAMES, XV_NAMES
+from engine_model.channels import (
+    OUTPUT_NAMES,
+    PAPER_THETA,
+    THETA_NAMES,
+    W_NAMES,
+    XS_NAMES,
+    XV_NAMES,
+)
 from engine_model.validation import ENVELOPE, InputError
 
 from .measurement_noise import check_model_error
@@ -71,6 +78,13 @@ def _vec(value, n, what) -> np.ndarray:
         raise InputError(f"{what}: expected one value or {n} values, got {a.size}")
     return a.copy()
 
+
+#: model outputs besides the measured channels ``x_s`` that a data set may record as
+#: readings, usable as sensors with the data's noise (``noise="data"``): C-MAPSS publishes
+#: the bypass ratio ``BPR`` and the HPT / LPT coolant flows ``W31`` / ``W32`` (Saxena et al.
+#: 2008, Table 2), flows that the gas-path temperatures and pressures alone do not pin
+#: (docs/calibration.md, "Flow channels")
+DERIVED_SENSORS = tuple(c for c in OUTPUT_NAMES if c not in XS_NAMES)
 
 KNOWN_COLUMNS = frozenset(("unit", "cycle", "t", "Fc", "hs", "RUL", "phi", *W_NAMES, *XS_NAMES,
                            *XV_NAMES, *THETA_NAMES))
@@ -101,7 +115,9 @@ class CalibrationSetup:
     ``params``      health parameters to estimate [the paper's HPT_eff_mod, LPT_eff_mod,
                     LPT_flow_mod]; any subset of :data:`channels.THETA_NAMES`
     ``sensors``     measured channels to use [None: every x_s channel present in the data
-                    except ``exclude_sensors``]
+                    except ``exclude_sensors``]; with ``noise="data"`` also any other
+                    output of the model the data record (:data:`DERIVED_SENSORS`, e.g.
+                    C-MAPSS's ``BPR``, ``W31``, ``W32``)
     ``exclude_sensors`` channels left out of the default set: a dataset's metadata names
                     those that do not follow their stated definition (``not_physical`` of
                     a C-MAPSS import: its ``Ps30``) [()]
@@ -162,10 +178,16 @@ class CalibrationSetup:
             object.__setattr__(self, "sensors", sensors)
             if len(set(sensors)) != len(sensors):
                 raise InputError(f"sensors listed twice: {', '.join(sensors)}")
-            bad = [c for c in sensors if c not in XS_NAMES]
+            bad = [c for c in sensors if c not in OUTPUT_NAMES]
             if bad:
                 raise InputError(f"unknown sensor(s) {', '.join(bad)}; measured channels are "
-                                 f"{', '.join(XS_NAMES)}")
+                                 f"{', '.join(XS_NAMES)}, and with noise='data' any output "
+                                 f"the model computes ({', '.join(DERIVED_SENSORS)})")
+            derived = [c for c in sensors if c not in XS_NAMES]
+            if derived and self.noise != "data":
+                raise InputError(f"sensor(s) {', '.join(derived)}: the simulator documents the "
+                                 "noise of the measured channels x_s only; use the data's "
+                                 "noise (noise='data', --noise data)")
             if not sensors:
                 raise InputError("calibration: no sensor to use")
         object.__setattr__(self, "exclude_sensors", tuple(self.exclude_sensors))

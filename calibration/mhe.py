@@ -504,6 +504,10 @@ class MHEEstimator(Estimator):
                  source=None, p=None) -> CalibrationResult:
         setup = setup or CalibrationSetup()
         series = prepare_unit(df_unit, setup, source)
+        derived = [c for c in series.sensors if c not in XS_NAMES]
+        if derived:  # the compiled NLP's outputs are the measured channels x_s
+            raise InputError(f"{self.name}: reads the measured channels x_s only, not "
+                             f"{', '.join(derived)}; use the ukf or ekf estimator")
         return run_windows(self.model, series, setup, self.options, self.per_cycle, p,
                            self.warn_unobservable)
 

@@ -92,7 +92,8 @@ Params = Annotated[str | None, typer.Option(
     "--params", help="Comma-separated health parameters to estimate, or 'all' (default: the "
     "paper's HPT_eff_mod,LPT_eff_mod,LPT_flow_mod).")]
 Sensors = Annotated[str | None, typer.Option(
-    "--sensors", help="Comma-separated measured channels to use (default: every x_s in the data).")]
+    "--sensors", help="Comma-separated measured channels to use (default: every x_s in the data); "
+    "with --noise data also other model outputs the data record, e.g. C-MAPSS's BPR, W31, W32.")]
 Drift = Annotated[str | None, typer.Option(
     "--drift", help="Random-walk std of theta per sqrt(hour), or 'mle': estimated from the "
     "data by maximum likelihood (default: 1e-3).")]

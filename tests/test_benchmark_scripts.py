@@ -90,11 +90,13 @@ def test_cmapss_model_error_is_a_number_or_consistent():
     assert cmapss.model_error_option("consistent") == "consistent"
     with pytest.raises(argparse.ArgumentTypeError, match="'often'"):
         cmapss.model_error_option("often")
-    assert cmapss.noise_options("data", "consistent") == (
+    assert cmapss.measurement_options("data", "consistent") == (
         ["--noise", "data", "--model-error", "consistent"],
         "--noise data --model-error consistent")
-    assert cmapss.noise_options("data", 0.003)[1] == "--noise data --model-error 0.003"
-    assert cmapss.noise_options("model", 0.0) == ([], "")
+    assert cmapss.measurement_options("data", 0.003)[1] == "--noise data --model-error 0.003"
+    assert cmapss.measurement_options("model", 0.0) == ([], "")
+    assert cmapss.measurement_options("data", "consistent", "T30,BPR")[1] == (
+        "--noise data --model-error consistent --sensors T30,BPR")
 
 
 def test_parse_range_reads_ranges_and_lists():

@@ -469,6 +469,45 @@ def test_data_noise_needs_an_operating_condition_label(runner, tmp_path):
     assert not (tmp_path / "f").exists()
 
 
+def test_the_flow_channels_are_read_with_the_datas_noise_and_refused_without(runner,
+                                                                            tmp_path):
+    """C-MAPSS's bypass ratio and coolant flows (model outputs outside x_s) are sensors of a
+    calibration with the data's noise: estimated per condition like the others, and recorded
+    with the sensors used. The simulator documents no noise for them, so without ``--noise
+    data`` they are refused with one line naming them; the MHE, whose compiled NLP reads x_s
+    only, refuses them too."""
+    from calibration import CalibrationSetup
+    from calibration.mhe import MHEEstimator
+    from engine_model.datasets import read_metadata
+
+    train = write_lines(tmp_path / "train_FD002.txt", noisy_fd002_lines(units=3, cycles=12))
+    data, feats = tmp_path / "fd002", tmp_path / "features"
+    assert runner.invoke(app, ["data", "import-cmapss", str(train), "--out",
+                               str(data)]).exit_code == 0
+    flows = "T24,T30,T50,P15,P30,Nc,BPR,W31,W32"
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "refused"),
+                            "--sensors", flows])
+    assert_user_error(r, "BPR, W31, W32", "--noise data", code=None)
+    assert not (tmp_path / "refused").exists()
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(feats), "--noise", "data",
+                            "--sensors", flows, "--quiet"])
+    assert r.exit_code == 0, r.output
+    meta = read_metadata(feats)
+    assert meta["calibration"]["setup"]["sensors"] == flows.split(",")
+    in_table = {ch for _, ch, _ in meta["calibration"]["setup"]["noise_table"]}
+    assert {"BPR", "W31", "W32"} <= in_table
+    df, _ = read_dataset(feats)
+    assert np.isfinite(df["HPT_eff_mod_hat"]).all()
+    with pytest.raises(InputError, match="unknown sensor.*BPR2"):
+        CalibrationSetup(noise="data", sensors=("T30", "BPR2"))
+    unit = read_dataset(data)[0].query("unit == 1").reset_index(drop=True)
+    setup = CalibrationSetup(noise="data", sensors=("T30", "BPR"),
+                             noise_table=((c, ch, 1.0) for c in range(1, 7)
+                                          for ch in ("T30", "BPR")))
+    with pytest.raises(InputError, match="x_s only, not BPR"):
+        MHEEstimator().estimate(unit, setup)
+
+
 def test_the_pipeline_calibrates_with_the_datas_noise_and_a_consistent_model_error(runner,
                                                                                     tmp_path):
     """``[calibrate] noise = "data"``, ``model_error = "consistent"``: the pipeline's feature
