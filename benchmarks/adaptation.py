@@ -58,9 +58,10 @@ LATE = 10
 def calibrated(raw: Path, work: Path, tag: str, params=None, adapted: Path | None = None,
                units: str | None = None, noise: tuple = ()) -> Path:
     """``raw`` calibrated into ``work`` (once) with the UKF, ``params``, the adapted model,
-    ``units`` and ``noise`` (``hyprog calibrate``'s ``--noise`` / ``--model-error``
-    options, which name the folder too, as do the first 8 hex digits of the adapted model's
-    SHA-256: a folder calibrated with another adapted model is not reused)."""
+    ``units`` and ``noise`` (``hyprog calibrate``'s ``--noise`` / ``--model-error`` /
+    ``--sensors`` options, which name the folder too, as do the first 8 hex digits of the
+    adapted model's SHA-256: a folder calibrated with another adapted model is not
+    reused)."""
     out = work / (f"{raw.name}-{tag}"
                   + ("" if adapted is None else f"-{file_sha(adapted)[:8]}")
                   + "".join(f"-{a.lstrip('-')}" for a in noise))
@@ -235,7 +236,12 @@ def main(argv=None) -> int:
                     help="the sections to run and report (the adapted model is made or "
                     "loaded whichever; it is written to --results with section 1 only)")
     args = ap.parse_args(argv)
-    sections = {int(k) for k in args.sections.split(",")}
+    try:
+        sections = {int(k) for k in args.sections.split(",")}
+    except ValueError:
+        sections = set()
+    if not sections or not sections <= {1, 2, 3, 4}:
+        ap.error(f"--sections {args.sections!r}: some of 1,2,3,4, comma-separated")
     noise = (() if args.noise == "model" else ("--noise", args.noise)) + (
         () if args.model_error in ("0", "0.0") else ("--model-error", args.model_error))
     # the calibrations' options: discover (section 4) reads x_s with the same R
@@ -253,8 +259,8 @@ def main(argv=None) -> int:
         report += section_1(json.loads(adapted.read_text()), fd002)
     if 2 in sections:
         report += section_2(args, fd002, adapted, calibrate)
-    if 3 in sections:
-        report += section_3(args, adapted, calibrate)
+    if 3 in sections:  # (its calibration options are said by section 2 when it runs)
+        report += section_3(args, adapted, calibrate, say_options=2 not in sections)
     if 4 in sections:
         report += section_4(args, fd002, adapted, noise)
     text = "\n".join(report)
@@ -291,14 +297,16 @@ def section_2(args, fd002: Path, adapted: Path, noise: tuple) -> list[str]:
     return report
 
 
-def section_3(args, adapted: Path, noise: tuple) -> list[str]:
-    """FD001's change of theta_hat over life, unadapted and adapted: the lines."""
+def section_3(args, adapted: Path, noise: tuple, say_options: bool) -> list[str]:
+    """FD001's change of theta_hat over life, unadapted and adapted: the lines (with the
+    calibration's options ``noise`` when ``say_options``)."""
+    said = f" Calibrated with {' '.join(noise) or 'the simulator noise'}." if say_options else ""
     report = ["## 3. FD001: change of theta_hat over life, median over units [%]", "",
               f"Per unit, the mean of the last {LATE} cycles minus the mean of the first "
               f"{EARLY}; units 1-20 (the issue's measurement) and every unit (each "
               "calibration on its own units, so the consistent model error is estimated on "
-              "them); the interval is a 95 % bootstrap over units (2,000 draws, seed 0). "
-              f"Calibrated with {' '.join(noise) or 'the simulator noise'}.", ""]
+              "them); the interval is a 95 % bootstrap over units (2,000 draws, seed 0)."
+              + said, ""]
     fd001 = imported(args.data_dir, args.work, "FD001")
     rows, intervals = {}, {}
     for units, tag in ((",".join(map(str, range(1, 21))), "units 1-20"), (None, "every unit")):

@@ -443,7 +443,7 @@ def main(argv=None) -> int:
         if args.model_effects is not None:
             variant["model_effects"] = file_sha(args.model_effects)
             suffix += f", adapted {variant['model_effects'][:8]}"
-        if noise_tag:
+        if noise_tag:  # the measurement model: noise, model error and --sensors
             variant["noise"] = noise_tag
             suffix += f" {noise_tag}"
         # what every run's label ends with: the pooled units, another partition of the folds

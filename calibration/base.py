@@ -73,6 +73,12 @@ class Estimator(ABC):
             raise InputError(f"calibration method {cls.name!r}: no option "
                              f"{', '.join(unknown)}")
 
+    @classmethod
+    def check_setup(cls, setup: CalibrationSetup) -> None:
+        """Refuse a ``setup`` this estimator cannot run, before any work (every setup by
+        default; the MHE reads the measured channels ``x_s`` only)."""
+        return None
+
     @abstractmethod
     def estimate(self, df_unit: pd.DataFrame, setup: CalibrationSetup | None = None,
                  source=None) -> CalibrationResult:

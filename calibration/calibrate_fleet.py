@@ -415,6 +415,7 @@ def calibrate_fleet(data, method: str = "ukf", setup: CalibrationSetup | None = 
     options = dict(options or {})
     # an unknown method or a bad option: a clear error before any work (no model built)
     estimator_class(method).check_options(options)
+    estimator_class(method).check_setup(setup)
     specs = effect_specs(effects)  # a bad specification: clear error before any work
     if jobs < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")

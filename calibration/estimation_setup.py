@@ -6,7 +6,8 @@ State-space model shared by all (paper eq. 5-6)::
     y_k     = F(w_k, theta_k) + eps_k,   eps_k ~ N(0, R_k),   R_k = diag(s sigma_rel |y_k|)^2
 
 - ``F`` is the exact steady-state model (:class:`engine_model.EngineModel`, or any
-  :class:`engine_model.solver.interface.SteadyStateModel`), ``y`` the chosen measured channels.
+  :class:`engine_model.solver.interface.SteadyStateModel`), ``y`` the chosen measured channels
+  (with ``noise="data"`` also other model outputs the data record: :data:`DERIVED_SENSORS`).
 - ``R_k``: the sensor noise of :mod:`engine_model.simulator.sensor_noise` (proportional to
   the reading; ``s = noise_scale``), evaluated at the measured reading (the difference to the
   noise-free reading is a fraction of a percent of sigma). That table is hyprog's simulator's

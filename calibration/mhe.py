@@ -500,14 +500,18 @@ class MHEEstimator(Estimator):
         super().check_options(options)
         MHEOptions(**options)  # its own rules (window, stride, mode, hessian)
 
+    @classmethod
+    def check_setup(cls, setup: CalibrationSetup) -> None:
+        derived = [c for c in setup.sensors or () if c not in XS_NAMES]
+        if derived:  # the compiled NLP's outputs are the measured channels x_s
+            raise InputError(f"{cls.name}: reads the measured channels x_s only, not "
+                             f"{', '.join(derived)}; use the ukf or ekf estimator")
+
     def estimate(self, df_unit: pd.DataFrame, setup: CalibrationSetup | None = None,
                  source=None, p=None) -> CalibrationResult:
         setup = setup or CalibrationSetup()
+        self.check_setup(setup)
         series = prepare_unit(df_unit, setup, source)
-        derived = [c for c in series.sensors if c not in XS_NAMES]
-        if derived:  # the compiled NLP's outputs are the measured channels x_s
-            raise InputError(f"{self.name}: reads the measured channels x_s only, not "
-                             f"{', '.join(derived)}; use the ukf or ekf estimator")
         return run_windows(self.model, series, setup, self.options, self.per_cycle, p,
                            self.warn_unobservable)
 

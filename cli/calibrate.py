@@ -159,6 +159,7 @@ def run(
                        model_error)
         opts = _options(method, window, stride, mode, hessian)
         estimator_class(method).check_options(opts)  # before the work below builds the model
+        estimator_class(method).check_setup(setup)
         unit_list = parse_units(units)
         adapted = None
         if model_effects is not None:
@@ -251,6 +252,7 @@ def compare_cmd(
                            f", which --methods {methods} does not run")
         for m, cls in classes.items():  # before the drift's estimate and the runs
             cls.check_options(opts.get(m, {}))
+            cls.check_setup(setup)
         setup = _with_drift_mle(drift, data, setup, parse_units(units))
         with progress_bar("comparing", as_json or quiet) as update:
             report = compare(data, names, setup, opts, parse_units(units), jobs, scheduler,

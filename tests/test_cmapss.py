@@ -500,12 +500,12 @@ def test_the_flow_channels_are_read_with_the_datas_noise_and_refused_without(run
     assert np.isfinite(df["HPT_eff_mod_hat"]).all()
     with pytest.raises(InputError, match="unknown sensor.*BPR2"):
         CalibrationSetup(noise="data", sensors=("T30", "BPR2"))
-    unit = read_dataset(data)[0].query("unit == 1").reset_index(drop=True)
-    setup = CalibrationSetup(noise="data", sensors=("T30", "BPR"),
-                             noise_table=((c, ch, 1.0) for c in range(1, 7)
-                                          for ch in ("T30", "BPR")))
-    with pytest.raises(InputError, match="x_s only, not BPR"):
-        MHEEstimator().estimate(unit, setup)
+    r = runner.invoke(app, ["calibrate", str(data), "--out", str(tmp_path / "mhe"), "--method",
+                            "mhe", "--noise", "data", "--sensors", "T30,BPR"])
+    assert_user_error(r, "mhe: reads the measured channels x_s only, not BPR", code=None)
+    assert not (tmp_path / "mhe").exists()
+    with pytest.raises(InputError, match="x_s only, not W31"):
+        MHEEstimator.check_setup(CalibrationSetup(noise="data", sensors=("T30", "W31")))
 
 
 def test_the_pipeline_calibrates_with_the_datas_noise_and_a_consistent_model_error(runner,
