@@ -13,13 +13,14 @@ built both ways for four cases: the base model (36 outputs; inputs: 10 theta, 4 
 discovery loop's candidate model (``hyprog discover --candidates`` of the steady default
 effects, map scaling and the sensor effects: 29 effect parameters), the adaptation's model
 (its default candidates, the sensitivities of its seven channels only) and the MHE's
-kernels. Each Function is written to C, compiled as the model compiles it (gcc ``-O1``,
-one core) and evaluated on the same converged points over ``--points`` points and over 64
-(a filter step), serially (one thread), for ``--seconds`` each; the table gives
-instructions (CasADi's count), C source size, compile seconds, microseconds per point and
-the largest difference between the two modes' numbers relative to the largest magnitude of
-each output. Speeds on a shared machine vary by 10-20 % from run to run; the compile times
-more (run it with the cores otherwise idle).
+kernels. Each Function is written to C, compiled as the model compiled it when these figures
+were made (gcc ``-O1``, one core; the model's cold library has been built at ``-Og`` since
+2026-11-29, ``benchmarks/codegen_opt.py``) and evaluated on the same converged points over
+``--points`` points and over 64 (a filter step), serially (one thread), for ``--seconds``
+each; the table gives instructions (CasADi's count), C source size, compile seconds,
+microseconds per point and the largest difference between the two modes' numbers relative to
+the largest magnitude of each output. Speeds on a shared machine vary by 10-20 % from run to
+run; the compile times more (run it with the cores otherwise idle).
 """
 
 from __future__ import annotations
@@ -35,9 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 MODES = ("forward", "reverse")
 
 
-def compiled(fn, folder: Path):
-    """``fn`` written to C in ``folder``, compiled with the model's cold-library command;
-    returns (the loaded Function, C bytes, compile seconds)."""
+def compiled(fn, folder: Path, opt: str = "-O1"):
+    """``fn`` written to C in ``folder``, compiled with the model's cold-library command at
+    ``opt`` (``-O1``, the level of this script's committed figures); returns (the loaded
+    Function, C bytes, compile seconds)."""
     import subprocess
     import time
 
@@ -50,7 +52,7 @@ def compiled(fn, folder: Path):
     src = Path(cg.generate(str(folder) + "/"))
     lib = folder / f"{fn.name()}.so"
     t0 = time.perf_counter()
-    subprocess.run([compiler(), "-O1", *CFLAGS, str(src), "-o", str(lib), "-lm"], check=True)
+    subprocess.run([compiler(), opt, *CFLAGS, str(src), "-o", str(lib), "-lm"], check=True)
     return ca.external(fn.name(), str(lib)), src.stat().st_size, time.perf_counter() - t0
 
 
