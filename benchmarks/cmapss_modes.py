@@ -2,7 +2,7 @@
 
     python benchmarks/cmapss_modes.py --features out/cmapss/fd003-features-all \\
         --runs benchmarks/results/cmapss/runs.jsonl.gz --subset FD003 \\
-        [--inputs "data-driven,hybrid-theta --params all"] [--results DIR]
+        [--inputs "data-driven,hybrid-theta --params all"] [--model dcnn] [--results DIR]
 
 FD003 and FD004 fail by two modes (HPC and fan degradation; Saxena et al., PHM 2008), and
 NASA's files do not say which unit fails by which. The calibration does: each unit's change
@@ -13,8 +13,9 @@ iteration from the two units farthest apart: no random start, the same split eve
 the table gives each group's mean change per parameter (in %), so the reader names the
 modes.
 
-Then, for every predictor of ``--inputs`` in the benchmark's run cache (``benchmarks/
-cmapss.py``'s ``runs.jsonl``, every partition of the folds it ran on), the seeds' mean
+Then, for every predictor of ``--inputs`` (``--model``'s networks) in the benchmark's run
+cache (``benchmarks/cmapss.py``'s ``runs.jsonl``, every partition of the folds it ran on),
+the seeds' mean
 prediction on each held-out unit (the ensemble, as in :func:`cmapss.ensemble_rmse`) is
 scored per group: last-cycle RMSE and bias (``RUL - RUL_pred``, positive = early) over every
 held-out unit of every partition. Cross-validation figures on training units, not test-set
@@ -77,11 +78,15 @@ def fault_groups(change: pd.DataFrame) -> pd.Series:
     return 1 - group if group[group.index.min()] == 1 else group
 
 
-def ensemble_errors(runs: list[dict], subset: str, inputs: list[str]) -> pd.DataFrame:
+def ensemble_errors(runs: list[dict], subset: str, inputs: list[str],
+                    model: str = "dcnn") -> pd.DataFrame:
     """One row per predictor, partition, fold and held-out unit: the seeds' mean error
-    (:func:`cmapss.ensemble_deltas`, folds with every seed done)."""
+    (:func:`cmapss.ensemble_deltas`, folds with every seed done) of ``model``'s networks
+    (the cache holds other models' runs under the same input labels: an ensemble mixes
+    none)."""
     nets = pd.DataFrame([r for r in {r["key"]: r for r in runs}.values()
-                         if r.get("kind") == "run" and r["subset"] == subset])
+                         if r.get("kind") == "run" and r["subset"] == subset
+                         and r["model"] == model])
     split = nets["inputs"].map(split_partition)
     nets = nets.assign(base=split.str[0], partition=split.str[1])
     rows = []
@@ -98,7 +103,10 @@ def main(argv=None) -> int:
                     help="the calibrated feature table of the subset (hyprog calibrate's)")
     ap.add_argument("--runs", type=Path, required=True)
     ap.add_argument("--subset", required=True)
-    ap.add_argument("--inputs", default="data-driven,hybrid-theta --params all")
+    ap.add_argument("--inputs", default="data-driven,hybrid-theta --params all",
+                    help="the predictors' labels, separated by ';' (a label may hold commas) "
+                    "or, when none holds one, by ','")
+    ap.add_argument("--model", default="dcnn", help="the networks' model")
     ap.add_argument("--results", type=Path)
     args = ap.parse_args(argv)
     change = life_change(pd.read_parquet(args.features))
@@ -110,7 +118,8 @@ def main(argv=None) -> int:
         lines.append(f"| {k} | {len(g)} | {g['life'].min()}–{g['life'].max()} | "
                      + " | ".join(f"{g[c].mean():+.2f}" for c in g.columns if c != "life")
                      + " |")
-    errors = ensemble_errors(read_runs(args.runs), args.subset, args.inputs.split(","))
+    labels = args.inputs.split(";" if ";" in args.inputs else ",")
+    errors = ensemble_errors(read_runs(args.runs), args.subset, labels, args.model)
     errors = errors.assign(group=errors["unit"].map(group))
     lines += ["", "| predictor | group | held-out units | RMSE | bias |", "|---|---|---|---|---|"]
     for (inputs, k), e in errors.groupby(["inputs", "group"], sort=True):

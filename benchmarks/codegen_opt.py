@@ -2,7 +2,7 @@
 against speed.
 
     python benchmarks/codegen_opt.py [--opts=-O1,-Og] [--points 2048] [--seconds 1] \\
-        [--rounds 5] [--seed 0] [--out benchmarks/results/engine_cold_library_og.md]
+        [--rounds 5] [--compiles 3] [--seed 0] [--out benchmarks/results/engine_cold_library_og.md]
 
 A compiled :class:`engine_model.EngineModel` builds two libraries per model variant (its
 effects): the hot one (the residual and its Newton Jacobian, the solver's inner loop, gcc
@@ -11,13 +11,14 @@ points, and the exact sensitivities, which the EKF, the observability test, the 
 bound and the discovery loop read). The cold library's C is three times the hot one's (the
 sensitivities alone about 2.8 MB), so its compiler time is what every new variant, and a
 test suite on an empty cache, pays most of. Here the base model's two cold functions are
-written to C and compiled at each level of ``--opts`` (one core; wall and the compiler's CPU
-seconds), then evaluated on the same converged points of the civil envelope, the levels
-interleaved over ``--rounds`` rounds of ``--seconds`` each (serially, one thread; over 64
-points, a filter step, and over ``--points``), so that a machine whose speed drifts from
-minute to minute drifts under every level alike; the table gives the median per point and
-the largest difference between the levels' numbers relative to each output's largest
-magnitude (none is expected: no level allows fast-math).
+written to C and compiled at each level of ``--opts`` ``--compiles`` times (one core; the
+compiler's wall and CPU seconds, median and range), then evaluated on the same converged
+points of the civil envelope over ``--rounds`` rounds of ``--seconds`` each (serially, one
+thread; over 64 points, a filter step, and over ``--points``). Compiles and rounds
+interleave the levels, in reverse order every other time, so that a machine whose speed
+drifts from minute to minute drifts under every level alike; the table gives medians and the
+largest difference between the levels' numbers relative to each output's largest magnitude
+(none is expected: no level allows fast-math).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sensitivities_ad import compiled, per_point, values  # noqa: E402
+from sensitivities_ad import compiled, largest_difference, per_point, values  # noqa: E402
 
 
 def compile_cpu(fn, folder: Path, opt: str) -> tuple:
@@ -50,6 +51,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=2048)
     ap.add_argument("--seconds", type=float, default=1.0)
     ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--compiles", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="also write the table here")
     a = ap.parse_args()
@@ -72,37 +74,48 @@ def main() -> None:
     sym = EngineModel(compiled=False)
     functions = {"outputs": sym.residual_system().outputs, "sensitivities":
                  sym.sensitivity_function()}
-    built, times = {}, {}
+    built, compiles, times = {}, {}, {}
+
+    def order(r: int) -> list:  # every other time in reverse: no level always goes first
+        return opts if r % 2 == 0 else opts[::-1]
+
     with tempfile.TemporaryDirectory() as tmp:
-        for name, fn in functions.items():
-            for opt in opts:
-                folder = Path(tmp) / f"{name}{opt}"
-                folder.mkdir()
-                built[name, opt] = compile_cpu(fn, folder, opt)
-        for _ in range(a.rounds):  # the levels interleaved: the machine drifts under both
-            for (name, opt), (lib, *_rest) in built.items():
-                for k in (min(64, n), n):
-                    times.setdefault((name, opt, k), []).append(
-                        per_point(lib, args, k, a.seconds))
-        got = {key: values(lib, args, n) for key, (lib, *_rest) in built.items()}
+        for r in range(a.compiles):
+            for name, fn in functions.items():
+                for opt in order(r):
+                    folder = Path(tmp) / f"{name}{opt}{r}"
+                    folder.mkdir()
+                    lib, size, secs, cpu = compile_cpu(fn, folder, opt)
+                    built[name, opt] = (lib, size)
+                    compiles.setdefault((name, opt), []).append((secs, cpu))
+        for r in range(a.rounds):
+            for opt in order(r):
+                for name in functions:
+                    for k in (min(64, n), n):
+                        times.setdefault((name, opt, k), []).append(
+                            per_point(built[name, opt][0], args, k, a.seconds))
+        got = {key: values(lib, args, n) for key, (lib, _) in built.items()}
 
     lines = ["# The engine model's cold library: compiler level against speed", "",
              f"{platform.machine()}, {os.cpu_count()} cores, Python "
              f"{platform.python_version()}; {n} converged points of the civil envelope (seed "
-             f"{a.seed}); gcc on one core; evaluated serially, one thread, the levels "
-             f"interleaved over {a.rounds} rounds (median).", "",
+             f"{a.seed}); gcc on one core, {a.compiles} compiles a level; evaluated "
+             f"serially, one thread, over {a.rounds} rounds; the levels interleaved; medians "
+             "(compiles: [range]).", "",
              "| function | level | C source | compile wall | compiler CPU | us/point (64) | "
              f"us/point ({n}) |", "|---|---|---|---|---|---|---|"]
-    for (name, opt), (_, size, secs, cpu) in built.items():
+    for (name, opt), (_, size) in sorted(built.items(), key=lambda kv: (
+            list(functions).index(kv[0][0]), opts.index(kv[0][1]))):
+        secs, cpu = (np.array([c[j] for c in compiles[name, opt]]) for j in (0, 1))
         t64, tn = (float(np.median(times[name, opt, k])) for k in (min(64, n), n))
-        lines.append(f"| {name} | {opt} | {size / 1e6:.2f} MB | {secs:.1f} s | {cpu:.1f} s | "
+        lines.append(f"| {name} | {opt} | {size / 1e6:.2f} MB | {np.median(secs):.1f} s | "
+                     f"{np.median(cpu):.1f} s [{cpu.min():.1f}, {cpu.max():.1f}] | "
                      f"{t64:.2f} | {tn:.2f} |")
     lines += ["", f"Largest difference from {opts[0]}'s numbers, relative to the largest "
               "magnitude of each output:", ""]
     for name in functions:
         for opt in opts[1:]:
-            d = max(float(np.max(np.abs(x - y)) / max(np.max(np.abs(x)), 1e-300))
-                    for x, y in zip(got[name, opts[0]], got[name, opt], strict=True))
+            d = largest_difference(got[name, opts[0]], got[name, opt])
             lines.append(f"- {name}, {opt}: {d:.1e}")
     text = "\n".join(lines) + "\n"
     print(text)

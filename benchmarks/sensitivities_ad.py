@@ -64,13 +64,13 @@ def values(fn, args, n: int) -> list:
     return [np.asarray(v) for v in (out if isinstance(out, tuple | list) else [out])]
 
 
-def largest_difference(got: dict) -> float:
-    """The largest difference between ``got["forward"]`` and ``got["reverse"]`` (lists of
-    output arrays), relative to the largest magnitude of each forward output."""
+def largest_difference(reference: list, other: list) -> float:
+    """The largest difference between two lists of output arrays, relative to the largest
+    magnitude of each ``reference`` output."""
     import numpy as np
 
     return max(float(np.max(np.abs(f - r)) / max(np.max(np.abs(f)), 1e-300))
-               for f, r in zip(got["forward"], got["reverse"], strict=True))
+               for f, r in zip(reference, other, strict=True))
 
 
 def per_point(fn, args, n: int, seconds: float) -> float:
@@ -146,7 +146,7 @@ def main() -> None:
                 rows.append((label, f"{len(m.p_default)} p", mode, fn.n_instructions(), size,
                              secs, per_point(lib, args, min(64, n), a.seconds),
                              per_point(lib, args, n, a.seconds)))
-            diffs[label] = largest_difference(got)
+            diffs[label] = largest_difference(got["forward"], got["reverse"])
         label = "MHE kernels jac + hgn (base)"
         got = {}
         for mode in MODES:
@@ -160,7 +160,7 @@ def main() -> None:
                          sum(s for _, s, _ in libs), sum(t for _, _, t in libs),
                          sum(per_point(lib, args, min(64, n), a.seconds) for lib, _, _ in libs),
                          sum(per_point(lib, args, n, a.seconds) for lib, _, _ in libs)))
-        diffs[label] = largest_difference(got)
+        diffs[label] = largest_difference(got["forward"], got["reverse"])
 
     lines = ["# Exact derivatives by forward or reverse mode", "",
              f"{platform.machine()}, {os.cpu_count()} cores, Python "

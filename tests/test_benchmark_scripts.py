@@ -8,6 +8,7 @@ import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import pytest
 
 from .conftest import REPO, load_script
@@ -200,3 +201,14 @@ def test_health_study_merges_committed_rows_only_for_the_same_fleet():
     other = pd.DataFrame(rows(0, 3, 14.9, 16.36))
     with pytest.raises(SystemExit, match="fleet 0, n 3"):
         hs.merge_committed(other, committed)
+
+
+def test_largest_difference_is_relative_to_each_reference_output():
+    """The benchmarks that compare two builds of the same Functions (forward and reverse
+    mode; two compiler levels) report the largest difference relative to each output's
+    largest magnitude, so a large output does not hide a small one's error."""
+    ad = load_script(BENCHMARKS / "sensitivities_ad.py", "sensitivities_ad_difference")
+    big, small = np.array([1000.0, -2000.0]), np.array([0.5, 1.0])
+    assert ad.largest_difference([big, small], [big, small]) == 0.0
+    assert ad.largest_difference([big, small], [big + 2.0, small]) == pytest.approx(1e-3)
+    assert ad.largest_difference([big, small], [big, small + 0.01]) == pytest.approx(0.01)

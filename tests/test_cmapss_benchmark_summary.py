@@ -177,3 +177,18 @@ def test_fault_groups_split_two_modes_of_change(modes):
     assert group.nunique() == 2
     shuffled = change.sample(frac=1.0, random_state=0)
     np.testing.assert_array_equal(modes.fault_groups(shuffled).sort_index(), group)
+
+
+def test_fault_mode_errors_average_one_models_seeds(modes):
+    """The cache holds other models' runs under the same input labels (the TCN's beside the
+    DCNN's on FD003): each ensemble averages the seeds of one model only."""
+    def run(model, seed, delta):
+        return {"key": f"{model}{seed}", "kind": "run", "subset": "FD003", "fold": 0,
+                "model": model, "inputs": "data-driven", "seed": seed,
+                "deltas": {"7": delta, "9": -delta}}
+
+    runs = [run("dcnn", 0, 2.0), run("dcnn", 1, 4.0), run("tcn", 0, 30.0), run("tcn", 1, 50.0)]
+    dcnn = modes.ensemble_errors(runs, "FD003", ["data-driven"])
+    assert sorted(dcnn["error"]) == [-3.0, 3.0]
+    tcn = modes.ensemble_errors(runs, "FD003", ["data-driven"], model="tcn")
+    assert sorted(tcn["error"]) == [-40.0, 40.0]

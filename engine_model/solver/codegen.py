@@ -112,8 +112,8 @@ def compile_keyed_all(jobs: list[KeyedLibrary]) -> list[dict[str, ca.Function]]:
     """:func:`compile_keyed` for several libraries at once, whose compilers run side by side:
     the libraries missing from the cache are built one after the other (CasADi's graph work
     and code generation stay in this thread), and each library's compiler starts as soon as
-    its source is written, so that a model's two libraries compile in about the time of the
-    larger one on two cores. The locks (:func:`build_lock`) are taken in the order of
+    its source is written, so that a model's libraries compile in about the time of the
+    largest on two cores. The locks (:func:`build_lock`) are taken in the order of
     ``jobs``, so processes asking for the same libraries never wait on each other in a
     circle."""
     cc = _compiler_or_fail()

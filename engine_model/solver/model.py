@@ -200,27 +200,31 @@ class EngineModel:
                 tag = "v" + hashlib.sha256(tag.encode()).hexdigest()[:16]
             name = "hyprog_engine" + (("_" + tag) if tag else "")
             key = self._library_key(f_out)
-            # the sensitivities of some outputs only: another cold library, the same hot one
-            cold_key = key if self.sens_outputs == OUTPUT_NAMES else hashlib.sha256(
+            # the sensitivities of some outputs only: another sensitivity library, the same
+            # hot and output ones
+            sens_key = key if self.sens_outputs == OUTPUT_NAMES else hashlib.sha256(
                 "\0".join((key, *self.sens_outputs)).encode()).hexdigest()
             sym = self._symbolic
-            # the two libraries' compilers run side by side (compile_keyed_all)
-            hot, cold = compile_keyed_all([
+            # three libraries, whose compilers run side by side (compile_keyed_all): the
+            # solver's inner loop at -O3; the outputs, which every filter step evaluates at
+            # its sigma points, at -O1; the sensitivities (2.8 MB of C for the base model)
+            # at -Og, a third less compiler time than -O1 for the same numbers at the same
+            # speed, which every new variant pays (benchmarks/results/engine_cold_library_og.md)
+            hot, out, sens = compile_keyed_all([
                 KeyedLibrary(name + "_hot", key, ("hyprog_residual", "hyprog_resjac"),
                              lambda: [sym["residual"], sym["resjac"]], opt="-O3",
                              extra_sources=(str(Path(__file__).with_name("newton_batch.c")),),
                              extra_flags=("-DRES_FN=hyprog_residual",
                                           "-DRESJAC_FN=hyprog_resjac"),
                              optional_flags=("-fopenmp",)),
-                # -Og: the same speed as -O1 on this code and a third less compiler time
-                # (the sensitivities' 2.8 MB of C: 8 s against 12 s), which every new
-                # variant pays (benchmarks/results/engine_cold_library_og.md)
-                KeyedLibrary(name + "_cold", cold_key, ("hyprog_outputs", "hyprog_sensitivities"),
-                             lambda: [sym["outputs"], sym["sens"]], opt="-Og")])
+                KeyedLibrary(name + "_out", key, ("hyprog_outputs",),
+                             lambda: [sym["outputs"]], opt="-O1"),
+                KeyedLibrary(name + "_sens", sens_key, ("hyprog_sensitivities",),
+                             lambda: [sym["sens"]], opt="-Og")])
             self._newton_c = CompiledNewton(hot["__library__"])
             fns = _LazyFunctions(self._derived, residual=hot["hyprog_residual"],
-                                 resjac=hot["hyprog_resjac"], outputs=cold["hyprog_outputs"],
-                                 sens=cold["hyprog_sensitivities"])
+                                 resjac=hot["hyprog_resjac"], outputs=out["hyprog_outputs"],
+                                 sens=sens["hyprog_sensitivities"])
         else:
             fns = self._symbolic
             self._newton_c = None
