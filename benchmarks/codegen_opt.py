@@ -1,24 +1,25 @@
-"""The compiler's optimisation level for the engine model's cold library: compiler time
-against speed.
+"""The compiler's optimisation level for the engine model's outputs and sensitivities:
+compiler time against speed.
 
     python benchmarks/codegen_opt.py [--opts=-O1,-Og] [--points 2048] [--seconds 1] \\
         [--rounds 5] [--compiles 3] [--seed 0] [--out benchmarks/results/engine_cold_library_og.md]
 
-A compiled :class:`engine_model.EngineModel` builds two libraries per model variant (its
-effects): the hot one (the residual and its Newton Jacobian, the solver's inner loop, gcc
-``-O3``) and the cold one (the outputs, which every filter step evaluates at its sigma
-points, and the exact sensitivities, which the EKF, the observability test, the Cramér-Rao
-bound and the discovery loop read). The cold library's C is three times the hot one's (the
-sensitivities alone about 2.8 MB), so its compiler time is what every new variant, and a
-test suite on an empty cache, pays most of. Here the base model's two cold functions are
-written to C and compiled at each level of ``--opts`` ``--compiles`` times (one core; the
-compiler's wall and CPU seconds, median and range), then evaluated on the same converged
-points of the civil envelope over ``--rounds`` rounds of ``--seconds`` each (serially, one
-thread; over 64 points, a filter step, and over ``--points``). Compiles and rounds
-interleave the levels, in reverse order every other time, so that a machine whose speed
-drifts from minute to minute drifts under every level alike; the table gives medians and the
-largest difference between the levels' numbers relative to each output's largest magnitude
-(none is expected: no level allows fast-math).
+A compiled :class:`engine_model.EngineModel` builds, per model variant (its effects), the
+hot library (the residual and its Newton Jacobian, the solver's inner loop, gcc ``-O3``) and
+the code of the outputs, which every filter step evaluates at its sigma points, and of the
+exact sensitivities, which the EKF, the observability test, the Cramér-Rao bound and the
+discovery loop read (one library at ``-O1`` until 2026-11-29; since, the outputs at ``-O1``
+and the sensitivities at ``-Og``, each in its own library). The sensitivities' C is three
+times the hot library's (about 2.8 MB), so their compiler time is what every new variant,
+and a test suite on an empty cache, pays most of. Here the base model's outputs and
+sensitivities are written to C and compiled at each level of ``--opts`` ``--compiles`` times
+(one core; the compiler's wall and CPU seconds, median and range), then evaluated on the
+same converged points of the civil envelope over ``--rounds`` rounds of ``--seconds`` each
+(serially, one thread; over 64 points, a filter step, and over ``--points``). Compiles and
+rounds interleave the levels, in reverse order every other time, so that a machine whose
+speed drifts from minute to minute drifts under every level alike; the table gives medians
+and the largest difference between the levels' numbers relative to each output's largest
+magnitude (none is expected: no level allows fast-math).
 """
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ def main() -> None:
                             per_point(built[name, opt][0], args, k, a.seconds))
         got = {key: values(lib, args, n) for key, (lib, _) in built.items()}
 
-    lines = ["# The engine model's cold library: compiler level against speed", "",
+    lines = ["# The engine model's outputs and sensitivities: compiler level against speed", "",
              f"{platform.machine()}, {os.cpu_count()} cores, Python "
              f"{platform.python_version()}; {n} converged points of the civil envelope (seed "
              f"{a.seed}); gcc on one core, {a.compiles} compiles a level; evaluated "
