@@ -56,17 +56,17 @@ LATE = 10
 
 
 def calibrated(raw: Path, work: Path, tag: str, params=None, adapted: Path | None = None,
-               units: str | None = None, noise: tuple = ()) -> Path:
+               units: str | None = None, options: tuple = ()) -> Path:
     """``raw`` calibrated into ``work`` (once) with the UKF, ``params``, the adapted model,
-    ``units`` and ``noise`` (``hyprog calibrate``'s ``--noise`` / ``--model-error`` /
+    ``units`` and ``options`` (``hyprog calibrate``'s ``--noise`` / ``--model-error`` /
     ``--sensors`` options, which name the folder too, as do the first 8 hex digits of the
     adapted model's SHA-256: a folder calibrated with another adapted model is not
     reused)."""
     out = work / (f"{raw.name}-{tag}"
                   + ("" if adapted is None else f"-{file_sha(adapted)[:8]}")
-                  + "".join(f"-{a.lstrip('-')}" for a in noise))
+                  + "".join(f"-{a.lstrip('-')}" for a in options))
     if not out.exists():
-        args = ["calibrate", raw, "--out", out, *noise]
+        args = ["calibrate", raw, "--out", out, *options]
         if params:
             args += ["--params", ",".join(params)]
         if adapted is not None:
@@ -283,24 +283,26 @@ def section_1(rec: dict, fd002: Path) -> list[str]:
             z_tables(rec, *condition_out_std(rec, fd002)), ""]
 
 
-def section_2(args, fd002: Path, adapted: Path, noise: tuple) -> list[str]:
+def section_2(args, fd002: Path, adapted: Path, options: tuple) -> list[str]:
     """Early-life theta_hat of the FD002 engines, unadapted and adapted: the lines."""
     report = ["## 2. Early-life health of the FD002 engines [%]", "",
-              f"Calibrated with {' '.join(noise) or 'the simulator noise'} (sections 2, 3).",
+              f"Calibrated with {' '.join(options) or 'the simulator noise'} (sections 2, 3).",
               ""]
     for params, label in ((None, "default parameters"), (FIVE, "the five of FD001")):
         tag = "default" if params is None else "five"
         for model, path in (("unadapted", None), ("adapted", adapted)):
-            feat = calibrated(fd002, args.work, f"{tag}-{model}", params, path, noise=noise)
+            feat = calibrated(fd002, args.work, f"{tag}-{model}", params, path,
+                              options=options)
             tab = early_life_theta(feat)
             report += [f"{label}, {model} model:", "", markdown(tab), ""]
     return report
 
 
-def section_3(args, adapted: Path, noise: tuple, say_options: bool) -> list[str]:
+def section_3(args, adapted: Path, options: tuple, say_options: bool) -> list[str]:
     """FD001's change of theta_hat over life, unadapted and adapted: the lines (with the
-    calibration's options ``noise`` when ``say_options``)."""
-    said = f" Calibrated with {' '.join(noise) or 'the simulator noise'}." if say_options else ""
+    calibration's ``options`` when ``say_options``)."""
+    said = (f" Calibrated with {' '.join(options) or 'the simulator noise'}." if say_options
+            else "")
     report = ["## 3. FD001: change of theta_hat over life, median over units [%]", "",
               f"Per unit, the mean of the last {LATE} cycles minus the mean of the first "
               f"{EARLY}; units 1-20 (the issue's measurement) and every unit (each "
@@ -313,7 +315,7 @@ def section_3(args, adapted: Path, noise: tuple, say_options: bool) -> list[str]
         for model, path in (("unadapted", None), ("adapted", adapted)):
             name = f"five-{model}" if units else f"five-{model}-all"
             change = change_over_life(calibrated(fd001, args.work, name, FIVE, path, units,
-                                                 noise))
+                                                 options))
             label = f"{model}, {tag} ({len(change)})"
             rows[label] = {**change.median().to_dict(),
                            "smaller HPC / largest other": hpc_signature(change)}
