@@ -62,7 +62,8 @@ def recorded(a) -> tuple[dict, object, object]:
     info = record.get("data", {})
     df, _ = datasets.read_dataset(imported(a.data_dir, a.work, "FD002"))
     data, _ = fleet_data(df, tuple(record["channels"]), info.get("early_cycles", EARLY_CYCLES),
-                         None, model_error=info.get("model_error", MODEL_ERROR))
+                         None, model_error=info.get("model_error", MODEL_ERROR),
+                         shared_model_error=info.get("model_error_shared", False))
     return record, df, data
 
 

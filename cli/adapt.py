@@ -43,6 +43,11 @@ def adapt(
         "--model-error", help="The model's own error, a relative std added to each sample's "
         "noise (default 0.001, calibration.adaptation.data.MODEL_ERROR; 0: the noise alone).",
         min=0.0)] = None,
+    model_error_shared: Annotated[bool, typer.Option(
+        "--model-error-shared", help="Treat the model's own error as the same for every "
+        "sample at one operating condition (one offset per condition and channel, with the "
+        "model error as its prior; Kennedy & O'Hagan) rather than as independent noise of "
+        "each sample (the default).")] = False,
     judge: Annotated[int, typer.Option(
         "--judge", help="Candidates judged with each condition left out per step, the best "
         "in sample first (default 3, calibration.adaptation.selection.TOP).", min=1)] = 3,
@@ -77,7 +82,7 @@ def adapt(
         res = run(df, tuple(chans), cands, early_cycles,
                   log=say, source=str(data), seed=seed,
                   model_error=MODEL_ERROR if model_error is None else model_error,
-                  judge=judge)
+                  judge=judge, model_error_shared=model_error_shared)
         record = res.record()
         write_adapted(record, out, overwrite, (data,))
     if as_json:

@@ -182,8 +182,8 @@ def test_a_fit_whose_optimum_is_on_the_bounds_converges_to_it(candidate_model, s
     assert (lo | hi).any() and ((fit.delta <= THETA_LO) | (fit.delta >= THETA_HI)).any()
     ev, e, ok = evaluate(candidate_model, data, fit.delta, fit.phi, True, fit.x)
     starts = np.searchsorted(data.unit, np.arange(data.n_units))
-    _, gu, _, hbb, gb = _normal_equations(ev, e, ok, data, fit.delta, fit.phi, sh,
-                                          fit.s_theta, starts)
+    _, gu, _, hbb, gb = _normal_equations(ev, e, ok, data.sigma, fit.delta, b, sh.free,
+                                          sh.prior, fit.s_theta, starts)
     scale = np.sqrt(np.diag(hbb))  # gradient per unit of the parameter's curvature
     assert np.all(gb[lo] < 0) and np.all(gb[hi] > 0)
     assert np.all(np.abs(gb[~(lo | hi)]) < 0.05 * scale[~(lo | hi)]), gb / scale

@@ -105,6 +105,19 @@ class Adaptation:
         return {q: {"mean": float(fit.delta[:, j].mean()), "std": float(fit.delta[:, j].std())}
                 for j, q in enumerate(THETA_NAMES)}
 
+    def discrepancy_pct(self, fit: FleetFit) -> dict | None:
+        """Condition -> channel -> the fitted offset ``b`` (the model's own error there, as
+        the fit sees it: :mod:`.fleet_fit`) in % of the channel's mean reading at the
+        condition; None when the model error was not shared."""
+        if fit.discrepancy is None:
+            return None
+        out = {}
+        for c, b in zip(fit.discrepancy_conditions, fit.discrepancy, strict=True):
+            y = self.data.y[self.data.condition == c].mean(axis=0)
+            out[int(c)] = {ch: float(100.0 * b[j] / y[j])
+                           for j, ch in enumerate(self.data.channels)}
+        return out
+
     def record(self) -> dict:
         sel = self.selection
         return {
@@ -138,6 +151,8 @@ class Adaptation:
                                           "after": sel.after.std_pct},
                 "theta_early_life": {"before": self.theta_summary(sel.base_fit),
                                      "after": self.theta_summary(sel.fit)},
+                "discrepancy_pct": {"before": self.discrepancy_pct(sel.base_fit),
+                                    "after": self.discrepancy_pct(sel.fit)},
             },
             "seconds": self.seconds,
             "hyprog_version": hyprog_version(),
@@ -147,12 +162,14 @@ class Adaptation:
 def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
           early_cycles: int = EARLY_CYCLES, units=None, model=None, log=None,
           source: str = "data", engine_folds: int = 3, seed: int = 0,
-          model_error: float = MODEL_ERROR, judge: int = TOP) -> Adaptation:
+          model_error: float = MODEL_ERROR, judge: int = TOP,
+          model_error_shared: bool = False) -> Adaptation:
     """Adapt the engine model to the fleet in ``df`` (package docstring). ``candidates``:
     registry names of :mod:`.groups` (default all); ``model``: a prebuilt
     :class:`~calibration.discrepancy.candidates.CandidateModel` whose candidates include
     these (:func:`prebuilt_groups`: one model for several adaptations);
-    ``model_error``: the model's relative error in each sample's std (:mod:`.data`);
+    ``model_error``: the model's relative error in each sample's std (:mod:`.data`),
+    shared by each condition's samples with ``model_error_shared`` (:mod:`.fleet_fit`);
     ``judge``: candidates judged out of sample per step (:data:`.selection.TOP`)."""
     from calibration.discrepancy.candidates import CandidateModel
 
@@ -161,7 +178,7 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
         raise InputError(f"judge must be at least 1 and engine folds at least 2, got {judge} "
                          f"and {engine_folds}")
     data, noise = fleet_data(df, channels, early_cycles, units, source=source,
-                             model_error=model_error)
+                             model_error=model_error, shared_model_error=model_error_shared)
     check_fleet(data, source, engine_folds)
     groups = build_groups(data.channels, candidates)
     if model is None:
@@ -175,7 +192,8 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     early = df[(df["cycle"] <= early_cycles) & df["unit"].isin(data.units)]
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
             "unit_list": list(data.units), "samples": len(data.y),
-            "early_cycles": early_cycles, "model_error": model_error, "judge": judge,
+            "early_cycles": early_cycles, "model_error": model_error,
+            "model_error_shared": model_error_shared, "judge": judge,
             "candidates": sorted({group_name(g) for g in groups}),
             "engine_folds": engine_folds, "seed": seed}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)
@@ -226,7 +244,8 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
     """An adapted model's record (:mod:`.artefact`) refitted to the early life of ``units`` of
     ``df`` with its own choices (channels, early cycles, model error, chosen candidates; a
     record without ``data.model_error`` was fitted with the noise alone, as every record was
-    before the option existed, and is refitted so), started at its recorded values: the fit
+    before the option existed, and is refitted so; one without ``data.model_error_shared``
+    counted it per sample), started at its recorded values: the fit
     and the errors with each condition left out, with their std
     (:attr:`.selection.OutOfSample.std_pct`). On the data it was adapted on it gives the std
     that a record written before ``std_pct_condition_out`` existed lacks; on other engines
@@ -241,7 +260,8 @@ def assess(df: pd.DataFrame, record: dict, units=None, model=None,
     chosen = list(record["selection"]["chosen"])
     data, _ = fleet_data(df, tuple(record["channels"]),
                          info.get("early_cycles", EARLY_CYCLES), units, source=source,
-                         model_error=info.get("model_error", 0.0))
+                         model_error=info.get("model_error", 0.0),
+                         shared_model_error=info.get("model_error_shared", False))
     check_fleet(data, source)
     if model is None:  # (record_groups refuses a name it does not know)
         groups = record_groups(record, data.channels)

@@ -21,6 +21,12 @@ condition, left 0.84 % in ``T30``, 5.17 % with a condition left out, and ended w
 parameters on their bounds; with ``0.001`` (2026-11-27) 0.44 % in sample and 2.66 % with a
 condition left out (docs/adaptation.md). A fleet simulated by the model itself has no model
 error: pass ``model_error=0`` there.
+
+The model error is the same for every sample at one operating condition (the model's mismatch
+there does not change from one reading to the next). ``shared_model_error=True`` makes the
+fleet fit treat it so, one unknown offset per condition and channel with this prior
+(:mod:`.fleet_fit`, ``FleetData.shared_error``); the default counts it as independent noise of
+every sample, as the committed FD002 adaptation was fitted.
 """
 
 from __future__ import annotations
@@ -45,10 +51,15 @@ MODEL_ERROR = 0.001
 
 def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = EARLY_CYCLES,
                units=None, condition: str = "condition", source: str = "data",
-               model_error: float = MODEL_ERROR) -> tuple[FleetData, pd.DataFrame]:
+               model_error: float = MODEL_ERROR, shared_model_error: bool = False,
+               ) -> tuple[FleetData, pd.DataFrame]:
     """``(FleetData, noise table)`` of the early-life rows of ``units`` (default all); each
-    sample's std the noise and ``model_error`` combined (module docstring)."""
+    sample's std the noise and ``model_error`` combined, the model error shared by each
+    condition's samples with ``shared_model_error`` (module docstring)."""
     model_error = check_model_error(model_error)
+    if shared_model_error and not model_error:
+        raise InputError("--model-error-shared: the model error is 0, so there is nothing to "
+                         "share; give --model-error above 0")
     twice = sorted({c for c in channels if list(channels).count(c) > 1})
     if twice:
         raise InputError(f"{source}: channel(s) {', '.join(twice)} listed twice")
@@ -84,5 +95,6 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
     data = FleetData(early[list(W_NAMES)].to_numpy(float), early[list(channels)].to_numpy(float),
                      sigma, unit.astype(int), tuple(int(u) for u in ids), cond.astype(int),
                      early["cycle"].to_numpy(), tuple(channels),
-                     model_error * np.abs(level) if model_error else None)
+                     model_error * np.abs(level) if model_error else None,
+                     shared_model_error)
     return data, noise

@@ -17,6 +17,29 @@ The negative log posterior (``e`` the whitened residual)::
 
     L = 1/2 |e|^2 + 1/2 sum_u |delta_u / s_theta|^2 + 1/2 |phi / s_phi|^2
 
+**The model's own error, shared by an operating point** (``FleetData.shared_error``). Each
+sample's std may include the model's own error ``s_jc`` (:mod:`.data`). Counted as
+independent noise of every sample, it is counted once per sample: a mismatch the model
+makes at one operating condition, the same in all of that condition's ~280 FD002
+samples, then weighs as ~280 independent errors, and the candidates' priors hardly count
+beside it. Kennedy & O'Hagan's discrepancy is a function of the operating point ("Bayesian
+calibration of computer models", JRSS B 63, 2001, sec. 4.3): one unknown offset per
+condition ``c`` and channel ``j``, shared by that condition's samples::
+
+    y_nj = G_j(w_n, delta_u(n), phi) + b_c(n),j + eps_nj,   b_cj ~ N(0, s_cj^2),
+    eps_nj ~ N(0, sigma_nj^2 - s_cj^2)                       (the noise alone)
+
+which, with ``b`` integrated out, is the Gaussian likelihood whose covariance couples the
+samples of one condition and channel (``noise^2 I + s^2 1 1^T``). The fit carries the
+``b_cj`` as shared parameters beside ``phi`` (the same Schur complement, a border of
+``conditions x channels`` more columns, unbounded, with their prior) and reports everything
+else as before: the residual, prediction and every error are the model's own (``b`` left
+out), whitened by the combined std; ``cov`` is ``phi``'s posterior with the health and ``b``
+integrated out. A condition the fit did not see has no ``b``: its prediction is the model's,
+uncertain by ``s`` (:func:`mean_prediction_std`). The adaptation default treats the error as
+independent (the committed FD002 adaptation was fitted so); ``hyprog adapt
+--model-error-shared`` uses this one.
+
 is minimised by Gauss-Newton with Levenberg-Marquardt damping (the damping scaled by the
 matrix's diagonal, Marquardt 1963; Nocedal & Wright 2006, sec. 10.3),
 steps projected onto the bounds. A parameter on a bound whose gradient points out of its
@@ -37,7 +60,7 @@ every engine marginalised out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -63,8 +86,9 @@ class FleetData:
     (N, m) their std in the likelihood, ``unit`` (N,) engine index 0..U-1 (rows grouped by
     engine, in order), ``units`` the engine ids, ``condition`` (N,) operating-condition
     label, ``cycle`` (N,); ``model_sd`` (N, m) the part of ``sigma`` that is the model's own
-    error (:mod:`.data`; None: none), which the likelihood treats as independent per sample
-    but which is the same for every sample at one operating point."""
+    error (:mod:`.data`; None: none), the same for every sample at one operating point;
+    ``shared_error``: the likelihood treats it so (one discrepancy per condition and channel,
+    module docstring) rather than as independent noise of each sample."""
 
     w: np.ndarray
     y: np.ndarray
@@ -75,6 +99,7 @@ class FleetData:
     cycle: np.ndarray
     channels: tuple
     model_sd: np.ndarray | None = None
+    shared_error: bool = False
 
     def subset(self, rows) -> FleetData:
         """The samples ``rows`` (a mask or indices); engines renumbered, order kept."""
@@ -84,7 +109,8 @@ class FleetData:
         return FleetData(self.w[rows], self.y[rows], self.sigma[rows], inv.astype(int),
                          tuple(self.units[i] for i in ids), self.condition[rows],
                          self.cycle[rows], self.channels,
-                         None if self.model_sd is None else self.model_sd[rows])
+                         None if self.model_sd is None else self.model_sd[rows],
+                         self.shared_error)
 
     @property
     def n_units(self) -> int:
@@ -119,7 +145,13 @@ class FleetFit:
     ``u``'s health is Gaussian with mean ``delta_u - health_gain[u] (phi - phi_hat)`` and
     covariance ``health_cov[u] = H_uu^-1`` (U, k, k); ``health_gain[u] = H_uu^-1 H_ub``
     (U, k, p). With ``cov`` this is the whole joint posterior, used for the uncertainty of a
-    prediction (:func:`mean_prediction_std`). ``s_theta`` is the engines' prior std."""
+    prediction (:func:`mean_prediction_std`). ``s_theta`` is the engines' prior std.
+
+    With the model error shared (:attr:`FleetData.shared_error`): ``discrepancy`` (C, m) the
+    fitted offsets ``b`` of the conditions ``discrepancy_conditions`` (C,) and channels, and
+    the border of the posterior is ``[phi[free], b]`` (``border_cov``, and ``health_gain``'s
+    last axis); ``cov`` is its ``phi`` block. Without it ``discrepancy`` is None and
+    ``border_cov`` is ``cov``."""
 
     phi: np.ndarray
     delta: np.ndarray
@@ -134,6 +166,9 @@ class FleetFit:
     health_cov: np.ndarray | None = field(default=None, repr=False)
     health_gain: np.ndarray | None = field(default=None, repr=False)
     s_theta: float = S_THETA
+    discrepancy: np.ndarray | None = None
+    discrepancy_conditions: np.ndarray | None = None
+    border_cov: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def iterations(self) -> int:
@@ -168,19 +203,68 @@ def evaluate(model, data: FleetData, delta, phi, derivatives=False, x0=None):
     return ev, np.where(ok[:, None], e, 0.0), ok
 
 
-def _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta, starts):
+@dataclass
+class _Discrepancy:
+    """The offsets ``b_cj`` of a fit whose model error is shared (module docstring): the
+    ``conditions`` (C,) of the data, each sample's condition ``row`` (N,) into them, the prior
+    std ``prior`` (C m,) of ``b`` flattened condition-major, and ``sigma`` (N, m) each
+    sample's std without the model's error (the noise alone)."""
+
+    conditions: np.ndarray
+    row: np.ndarray
+    prior: np.ndarray
+    sigma: np.ndarray
+
+    @classmethod
+    def of(cls, data: FleetData) -> _Discrepancy | None:
+        """The discrepancy of ``data``, or None when its model error is not shared (or it
+        has none)."""
+        if not data.shared_error or data.model_sd is None:
+            return None
+        conditions, row = np.unique(data.condition, return_inverse=True)
+        s = np.stack([data.model_sd[row == i].mean(axis=0) for i in range(len(conditions))])
+        if not np.all(s > 0):
+            raise ValueError("a shared model error needs a positive model error at every "
+                             "condition and channel")
+        noise = np.sqrt(np.maximum(data.sigma ** 2 - data.model_sd ** 2,
+                                   (1e-6 * data.sigma) ** 2))
+        return cls(conditions, row, s.ravel(), noise)
+
+    @property
+    def size(self) -> int:
+        return len(self.prior)
+
+    def offsets(self, b) -> np.ndarray:
+        """``b`` (C m,) at every sample: (N, m)."""
+        return np.asarray(b).reshape(len(self.conditions), -1)[self.row]
+
+    def jacobian(self) -> np.ndarray:
+        """d(model + b)/db over the noise's std: (N, m, C m), one nonzero per sample and
+        channel."""
+        n, m = self.sigma.shape
+        J = np.zeros((n, m, self.size))
+        col = self.row[:, None] * m + np.arange(m)[None, :]
+        J[np.arange(n)[:, None], np.arange(m)[None, :], col] = 1.0 / self.sigma
+        return J
+
+
+def _normal_equations(ev, e, ok, sigma, delta, z, free, prior, s_theta, starts, extra=None):
     """Gauss-Newton blocks at the current point: per engine ``Huu`` (U, k, k), ``gu`` (U, k),
-    ``Hub`` (U, k, p); shared ``Hbb`` (p, p), ``gb`` (p,) (gradients of ``-L``)."""
+    ``Hub`` (U, k, P); shared ``Hbb`` (P, P), ``gb`` (P,) (gradients of ``-L``). The shared
+    block ``z`` is ``phi[free]`` followed by a discrepancy's offsets, whose whitened Jacobian
+    is ``extra`` (N, m, P - len(free)); ``sigma`` the likelihood's std."""
     k = len(THETA_NAMES)
-    sig = data.sigma[:, :, None]
+    sig = sigma[:, :, None]
     A = np.where(ok[:, None, None], ev.d_theta / sig, 0.0)
-    B = np.where(ok[:, None, None], ev.d_phi[:, :, shared.free] / sig, 0.0)
+    B = np.where(ok[:, None, None], ev.d_phi[:, :, free] / sig, 0.0)
+    if extra is not None:
+        B = np.concatenate([B, np.where(ok[:, None, None], extra, 0.0)], axis=2)
     Huu = np.add.reduceat(np.einsum("nmi,nmj->nij", A, A), starts, axis=0) \
         + np.eye(k)[None] / s_theta ** 2
     gu = np.add.reduceat(np.einsum("nmi,nm->ni", A, e), starts, axis=0) - delta / s_theta ** 2
     Hub = np.add.reduceat(np.einsum("nmi,nmj->nij", A, B), starts, axis=0)
-    Hbb = np.einsum("nmi,nmj->ij", B, B) + np.diag(1.0 / shared.prior ** 2)
-    gb = np.einsum("nmi,nm->i", B, e) - phi[shared.free] / shared.prior ** 2
+    Hbb = np.einsum("nmi,nmj->ij", B, B) + np.diag(1.0 / prior ** 2)
+    gb = np.einsum("nmi,nm->i", B, e) - z / prior ** 2
     return Huu, gu, Hub, Hbb, gb
 
 
@@ -216,44 +300,64 @@ def _pushed_out(value, direction, lower, upper) -> np.ndarray:
 def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
               s_theta: float = S_THETA, max_iter: int = MAX_ITER, x0=None) -> FleetFit:
     """Minimise ``L`` (module docstring) over ``phi[shared.free]`` and every engine's
-    ``delta``; ``model`` a :class:`calibration.discrepancy.candidates.CandidateModel`. The
-    other entries of ``phi`` stay at ``phi0`` (``Shared.none()``: the engines only, under an
-    adaptation fitted on others)."""
+    ``delta`` (and, with the model error shared, the offsets ``b``); ``model`` a
+    :class:`calibration.discrepancy.candidates.CandidateModel`. The other entries of ``phi``
+    stay at ``phi0`` (``Shared.none()``: the engines only, under an adaptation fitted on
+    others)."""
     k = len(THETA_NAMES)
     phi = np.zeros(model.n_phi) if phi0 is None else np.array(phi0, float)
     delta = np.zeros((data.n_units, k)) if delta0 is None else np.array(delta0, float)
     free = shared.free
+    p = len(free)
     starts = np.searchsorted(data.unit, np.arange(data.n_units))
+    disc = _Discrepancy.of(data)
+    if disc is None:
+        lik, extra = data, None
+        prior, lower, upper = shared.prior, shared.lower, shared.upper
+    else:
+        lik, extra = replace(data, sigma=disc.sigma), disc.jacobian()
+        unbounded = np.full(disc.size, np.inf)
+        prior = np.concatenate([shared.prior, disc.prior])
+        lower = np.concatenate([shared.lower, -unbounded])
+        upper = np.concatenate([shared.upper, unbounded])
+    z = np.concatenate([phi[free], np.zeros(len(prior) - p)])
 
-    def cost_of(e, dl, ph):
+    def at(zz):
+        ph = phi.copy()
+        ph[free] = zz[:p]
+        return ph
+
+    def shifted(zz):
+        return lik if disc is None else replace(lik, y=lik.y - disc.offsets(zz[p:]))
+
+    def cost_of(e, dl, zz):
         return 0.5 * float(np.sum(e ** 2) + np.sum((dl / s_theta) ** 2)
-                           + np.sum((ph[free] / shared.prior) ** 2))
+                           + np.sum((zz / prior) ** 2))
 
-    ev, e, ok = evaluate(model, data, delta, phi, True, x0)
-    cost = cost_of(e, delta, phi)
+    ev, e, ok = evaluate(model, shifted(z), delta, at(z), True, x0)
+    cost = cost_of(e, delta, z)
     history = [cost]
     lam = 1e-3
     for _ in range(max_iter):
-        blocks = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta, starts)
-        b = phi[free]
+        blocks = _normal_equations(ev, e, ok, lik.sigma, delta, z, free, prior, s_theta,
+                                   starts, extra)
         gu, gb = blocks[1], blocks[4]  # descent directions (gradients of -L)
         # the active set (Bertsekas 1982): a parameter at a bound that the gradient pushes
         # out is held there for this iteration
-        at_bound = _pushed_out(b, gb, shared.lower, shared.upper)
+        at_bound = _pushed_out(z, gb, lower, upper)
         at_bound_u = _pushed_out(delta, gu, THETA_LO, THETA_HI)
         accepted = False
         while lam <= 1e8:
             db, dd = _step(*blocks, lam, at_bound, at_bound_u)
             # and so is one that the step, coupled to the others, pushes out
-            frozen = at_bound | _pushed_out(b, db, shared.lower, shared.upper)
+            frozen = at_bound | _pushed_out(z, db, lower, upper)
             frozen_u = at_bound_u | _pushed_out(delta, dd, THETA_LO, THETA_HI)
             if (frozen != at_bound).any() or (frozen_u != at_bound_u).any():
                 db, dd = _step(*blocks, lam, frozen, frozen_u)
-            new_phi = phi.copy()
-            new_phi[free] = np.clip(b + db, shared.lower, shared.upper)
+            new_z = np.clip(z + db, lower, upper)
             new_delta = np.clip(delta + dd, THETA_LO, THETA_HI)
-            ev2, e2, ok2 = evaluate(model, data, new_delta, new_phi, False, ev.x)
-            cost2 = cost_of(e2, new_delta, new_phi)
+            ev2, e2, ok2 = evaluate(model, shifted(new_z), new_delta, at(new_z), False, ev.x)
+            cost2 = cost_of(e2, new_delta, new_z)
             if cost2 < cost and ok2.sum() >= ok.sum():
                 accepted = True
                 break
@@ -261,20 +365,24 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
         if not accepted:
             break
         decrease = (cost - cost2) / max(cost, 1e-300)
-        delta, phi, cost = new_delta, new_phi, cost2
-        ev, e, ok = evaluate(model, data, delta, phi, True, ev2.x)
+        delta, z, cost = new_delta, new_z, cost2
+        ev, e, ok = evaluate(model, shifted(z), delta, at(z), True, ev2.x)
         history.append(cost)
         lam = max(lam / 10.0, 1e-9)
         if decrease < REL_TOL:
             break
-    Huu, _, Hub, Hbb, _ = _normal_equations(ev, e, ok, data, delta, phi, shared, s_theta,
-                                            starts)
+    Huu, _, Hub, Hbb, _ = _normal_equations(ev, e, ok, lik.sigma, delta, z, free, prior,
+                                            s_theta, starts, extra)
     health_cov = np.linalg.inv(Huu)
     health_gain = np.einsum("uij,ujb->uib", health_cov, Hub)
-    cov = np.linalg.pinv(Hbb - np.einsum("uib,uic->bc", Hub, health_gain)) if len(free) \
-        else np.zeros((0, 0))
-    return FleetFit(phi, delta, cov, e, ev.y, ok, cost, shared, history, ev.x, health_cov,
-                    health_gain, s_theta)
+    border_cov = np.linalg.pinv(Hbb - np.einsum("uib,uic->bc", Hub, health_gain)) \
+        if len(z) else np.zeros((0, 0))
+    if disc is not None:  # the model's own residual (b left out), whitened by the whole std
+        e = np.where(ok[:, None], (data.y - ev.y) / data.sigma, 0.0)
+    return FleetFit(at(z), delta, border_cov[:p, :p], e, ev.y, ok, cost, shared, history,
+                    ev.x, health_cov, health_gain, s_theta,
+                    None if disc is None else z[p:].reshape(len(disc.conditions), -1),
+                    None if disc is None else disc.conditions, border_cov)
 
 
 def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> np.ndarray:
@@ -299,23 +407,29 @@ def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> n
     (the prediction's variance from the shared parameters and from every engine's health;
     the readings' noise, which averages over the samples; the model's own error ``s =
     data.model_sd``, which does not: the samples of one operating condition share it, Kennedy
-    & O'Hagan's discrepancy being a function of the operating point). A parameter held at a
-    bound is treated as free (the curvature at the optimum). The std is the fit's own
-    statement of how well it knows the prediction: a mean error of many such stds says that
-    its candidates, priors or model error do not hold there."""
+    & O'Hagan's discrepancy being a function of the operating point). With the model error
+    shared in ``fit``, the shared parameters include the fitted offsets ``b`` of the
+    conditions it saw (``fit.border_cov``), on which the prediction of a condition it did not
+    see depends only through the engines' health; ``data`` must be such a condition. A
+    parameter held at a bound is treated as free (the curvature at the optimum). The std is
+    the fit's own statement of how well it knows the prediction: a mean error of many such
+    stds says that its candidates, priors or model error do not hold there."""
     rows = np.flatnonzero(usable)
     if not len(rows):
         return np.full(len(data.channels), np.nan)
     n_rows = len(rows)
     k = len(THETA_NAMES)
     Jd = ev.d_theta[rows]
-    Jp = ev.d_phi[rows][:, :, fit.shared.free]
+    border = fit.health_gain.shape[2]
+    Jp = np.zeros((n_rows, len(data.channels), border))
+    Jp[:, :, :len(fit.shared.free)] = ev.d_phi[rows][:, :, fit.shared.free]
     eng = np.asarray(engine)[data.unit[rows]]
     seen = eng >= 0
-    gain = np.zeros((n_rows, k, len(fit.shared.free)))
+    gain = np.zeros((n_rows, k, border))
     gain[seen] = fit.health_gain[eng[seen]]
     g = (Jp - np.einsum("nmk,nkb->nmb", Jd, gain)).sum(axis=0) / n_rows
-    var = np.einsum("mb,bc,mc->m", g, fit.cov, g) if len(fit.shared.free) else 0.0
+    cov = fit.cov if fit.border_cov is None else fit.border_cov
+    var = np.einsum("mb,bc,mc->m", g, cov, g) if border else 0.0
     for u in np.unique(data.unit[rows]):
         mine = data.unit[rows] == u
         a = Jd[mine].sum(axis=0) / n_rows
