@@ -449,6 +449,9 @@ def test_adapt_cli_refuses_bad_input_in_one_line(tmp_path):
     r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json"),
                             "--candidates", "map_scaling,map_scaling"])
     assert_user_error(r, "map_scaling listed twice")
+    r = runner.invoke(app, ["adapt", str(TINY), "--out", str(tmp_path / "a.json"),
+                            "--model-error", "0", "--model-error-shared"])
+    assert_user_error(r, "--model-error-shared: the model error is 0")  # would do nothing
     assert not (tmp_path / "a.json").exists()
 
 

@@ -212,3 +212,44 @@ def test_adapt_with_the_model_error_shared_records_it_and_the_fitted_offsets():
     np.testing.assert_allclose(fit.phi, res.selection.fit.phi, atol=1e-6)
     independent = adapt(df, channels, ("design_scaling",), model=model, model_error=0.002)
     assert independent.record()["selection"]["discrepancy_pct"]["after"] is None
+
+
+def test_held_out_engines_keep_the_offsets_the_other_engines_gave():
+    """The model's error at a condition is every engine's: a held-out engine's health is
+    fitted under the other engines' offsets (``hold_discrepancy``), which is least squares
+    on the readings less the offsets with the noise alone; ``engines_out`` runs so."""
+    from calibration.adaptation.selection import engines_out
+
+    model, data, shared, noise = fleet(True)
+    out = data.unit >= 4
+    train, test = data.subset(~out), data.subset(out)
+    fit = fit_fleet(model, train, shared, max_iter=100)
+    own = fit_fleet(model, test, Shared.none(), fit.phi, discrepancy0=fit.offsets,
+                    hold_discrepancy=True, max_iter=100)
+    np.testing.assert_array_equal(own.discrepancy, fit.discrepancy)
+    m = test.y.shape[1]
+    shifted = test.y - fit.discrepancy[np.searchsorted(fit.discrepancy_conditions,
+                                                       test.condition)]
+    ev = model.evaluate(test.w, np.zeros((len(test.y), K)), None, fit.phi)
+    for u in range(test.n_units):
+        rows = test.unit == u
+        A = ev.d_theta[rows].reshape(-1, K)
+        w = 1.0 / noise[out][rows].ravel() ** 2
+        r = (shifted[rows] - ev.y[rows]).ravel()
+        H = A.T @ (w[:, None] * A) + np.eye(K) / S_THETA ** 2
+        np.testing.assert_allclose(own.delta[u], np.linalg.solve(H, A.T @ (w * r)),
+                                   rtol=1e-5, atol=1e-9)
+    assert own.border_cov.shape == (0, 0) and m == own.discrepancy.shape[1]
+    assert np.isfinite(engines_out(model, data, shared, fit_fleet(model, data, shared)))
+
+
+def test_a_prediction_std_at_a_condition_whose_offsets_were_fitted_is_refused():
+    from calibration.adaptation.fleet_fit import evaluate, mean_prediction_std
+
+    model, data, shared, _ = fleet(True)
+    fit = fit_fleet(model, data, shared)
+    ev, _, ok = evaluate(model, data, fit.delta, fit.phi, derivatives=True)
+    with pytest.raises(ValueError, match="condition the fit did not see"):
+        mean_prediction_std(fit, ev, data, np.arange(data.n_units), ok)
+    with pytest.raises(ValueError, match="needs the model error"):
+        fit_fleet(model, FleetData(**{**vars(data), "model_sd": None}), shared)

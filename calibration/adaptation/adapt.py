@@ -106,15 +106,16 @@ class Adaptation:
                 for j, q in enumerate(THETA_NAMES)}
 
     def discrepancy_pct(self, fit: FleetFit) -> dict | None:
-        """Condition -> channel -> the fitted offset ``b`` (the model's own error there, as
-        the fit sees it: :mod:`.fleet_fit`) in % of the channel's mean reading at the
-        condition; None when the model error was not shared."""
+        """Condition -> channel -> the model's own error there as the fit sees it, ``-b``
+        (:mod:`.fleet_fit`: model minus reading, the sign of ``mean_error_pct``) in % of the
+        channel's mean reading at the condition; None when the model error was not
+        shared."""
         if fit.discrepancy is None:
             return None
         out = {}
         for c, b in zip(fit.discrepancy_conditions, fit.discrepancy, strict=True):
             y = self.data.y[self.data.condition == c].mean(axis=0)
-            out[int(c)] = {ch: float(100.0 * b[j] / y[j])
+            out[int(c)] = {ch: float(-100.0 * b[j] / y[j])
                            for j, ch in enumerate(self.data.channels)}
         return out
 

@@ -8,11 +8,13 @@ existing file is replaced only if it is an adapted model, or with ``--overwrite`
      "parameters": [{"candidate", "parameter", "value", "std", "valid", "at_bound"}, ...],
      "channels": [...], "noise": {condition: {channel: std}},
      "data": {"path", "fingerprint", "units", "unit_list", "samples", "early_cycles",
-              "model_error", "judge", "candidates", "engine_folds", "seed"},
+              "model_error", "model_error_shared", "judge", "candidates",
+              "engine_folds", "seed"},
      "selection": {...}, "seconds": ..., "hyprog_version": "..."}
 
 (records written before a key existed lack it; :func:`calibration.adaptation.assess` reads
-a missing ``model_error`` as the noise alone, with which those records were fitted). A
+a missing ``model_error`` as the noise alone, with which those records were fitted, and a
+missing ``model_error_shared`` as the error counted per sample). A
 number that could not be computed (no converged sample at a condition) is written as
 ``null``: the file is strict JSON.
 

@@ -17,6 +17,25 @@ The negative log posterior (``e`` the whitened residual)::
 
     L = 1/2 |e|^2 + 1/2 sum_u |delta_u / s_theta|^2 + 1/2 |phi / s_phi|^2
 
+(with the model error shared, last paragraph: ``e`` whitened by the noise alone with the
+offsets ``b`` added to the model, and ``1/2 |b / s|^2`` added to ``L``) is minimised by
+Gauss-Newton with Levenberg-Marquardt damping (the damping scaled by the matrix's diagonal,
+Marquardt 1963; Nocedal & Wright 2006, sec. 10.3), steps projected onto the bounds. A
+parameter on a bound whose gradient points out of its range is held there for the iteration
+(the active set of projected Newton methods, Bertsekas, "Projected Newton methods for
+optimization problems with simple constraints", SIAM J. Control Optim. 20, 1982), and so is
+one that the step, coupled to the others, pushes out; the same for an engine's health
+parameter on a bound of the calibration envelope,
+``engine_model.validation.ENVELOPE.theta``. (Holding only what the step pushed out released
+such parameters every other iteration, and fits whose optimum lies on the bounds stopped at
+the iteration cap short of it: 2026-11-28.) The normal equations are *bordered
+block-diagonal* (one small block per engine, a dense border for the shared parameters),
+solved by the Schur complement on the shared block (Triggs et al., "Bundle adjustment - a
+modern synthesis", 2000, sec. 6.1), so the cost is linear in the number of engines. The
+Gauss-Newton matrix at the optimum, inverted, is the posterior covariance; the shared block
+of it (the inverse Schur complement) is the uncertainty of the adaptation, the health of
+every engine marginalised out.
+
 **The model's own error, shared by an operating point** (``FleetData.shared_error``). Each
 sample's std may include the model's own error ``s_jc`` (:mod:`.data`). Counted as
 independent noise of every sample, it is counted once per sample: a mismatch the model
@@ -38,24 +57,10 @@ out), whitened by the combined std; ``cov`` is ``phi``'s posterior with the heal
 integrated out. A condition the fit did not see has no ``b``: its prediction is the model's,
 uncertain by ``s`` (:func:`mean_prediction_std`). The adaptation default treats the error as
 independent (the committed FD002 adaptation was fitted so); ``hyprog adapt
---model-error-shared`` uses this one.
-
-is minimised by Gauss-Newton with Levenberg-Marquardt damping (the damping scaled by the
-matrix's diagonal, Marquardt 1963; Nocedal & Wright 2006, sec. 10.3),
-steps projected onto the bounds. A parameter on a bound whose gradient points out of its
-range is held there for the iteration (the active set of projected Newton methods, Bertsekas,
-"Projected Newton methods for optimization problems with simple constraints", SIAM J.
-Control Optim. 20, 1982), and so is one that the step, coupled to the others, pushes out;
-the same for an engine's health parameter on a bound of the calibration envelope,
-``engine_model.validation.ENVELOPE.theta``. (Holding only what the step pushed out released
-such parameters every other iteration, and fits whose optimum lies on the bounds stopped at
-the iteration cap short of it: 2026-11-28.) The normal equations are *bordered
-block-diagonal* (one small block per engine, a dense border for the shared parameters),
-solved by the Schur complement on the shared block (Triggs et al., "Bundle adjustment - a
-modern synthesis", 2000, sec. 6.1), so the cost is linear in the number of engines. The
-Gauss-Newton matrix at the optimum, inverted, is the posterior covariance; the shared block
-of it (the inverse Schur complement) is the uncertainty of the adaptation, the health of
-every engine marginalised out.
+--model-error-shared`` uses this one. Within a condition the samples' spread (between
+engines, with the settings' jitter) is then weighed by the noise alone, where a channel
+written almost without noise (C-MAPSS's ``Nf``, ``P15``) weighs most: the caveat of the noise
+alone (:mod:`.data`), now within each condition rather than between conditions.
 """
 
 from __future__ import annotations
@@ -148,10 +153,12 @@ class FleetFit:
     prediction (:func:`mean_prediction_std`). ``s_theta`` is the engines' prior std.
 
     With the model error shared (:attr:`FleetData.shared_error`): ``discrepancy`` (C, m) the
-    fitted offsets ``b`` of the conditions ``discrepancy_conditions`` (C,) and channels, and
-    the border of the posterior is ``[phi[free], b]`` (``border_cov``, and ``health_gain``'s
-    last axis); ``cov`` is its ``phi`` block. Without it ``discrepancy`` is None and
-    ``border_cov`` is ``cov``."""
+    offsets ``b`` (reading minus model) of the conditions ``discrepancy_conditions`` (C,)
+    and channels, and, when they were fitted rather than held, the border of the posterior
+    is ``[phi[free], b]`` (``border_cov``, and ``health_gain``'s last axis); ``cov`` is its
+    ``phi`` block; ``cost`` includes ``b``'s prior, the residual in it whitened by the noise
+    alone (the reported ``residual`` is the model's, by the combined std). Without it
+    ``discrepancy`` is None and ``border_cov`` is ``cov``."""
 
     phi: np.ndarray
     delta: np.ndarray
@@ -186,6 +193,13 @@ class FleetFit:
         """Posterior std of ``phi[free]``."""
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
 
+    @property
+    def offsets(self):
+        """``(conditions, b (C, m))`` with the model error shared (the start or the held
+        offsets of another fit: :func:`fit_fleet`'s ``discrepancy0``), else None."""
+        return None if self.discrepancy is None else \
+            (self.discrepancy_conditions, self.discrepancy)
+
 
 def evaluate(model, data: FleetData, delta, phi, derivatives=False, x0=None):
     """The model at every sample with its engine's ``delta`` and the shared ``phi``:
@@ -219,12 +233,14 @@ class _Discrepancy:
     def of(cls, data: FleetData) -> _Discrepancy | None:
         """The discrepancy of ``data``, or None when its model error is not shared (or it
         has none)."""
-        if not data.shared_error or data.model_sd is None:
+        if not data.shared_error:
             return None
+        if data.model_sd is None:
+            raise ValueError("a shared model error needs the model error (FleetData.model_sd)")
         conditions, row = np.unique(data.condition, return_inverse=True)
         s = np.stack([data.model_sd[row == i].mean(axis=0) for i in range(len(conditions))])
-        if not np.all(s > 0):
-            raise ValueError("a shared model error needs a positive model error at every "
+        if not np.all(s > 0) or not np.allclose(data.model_sd, s[row], rtol=1e-9):
+            raise ValueError("a shared model error needs one positive model error per "
                              "condition and channel")
         noise = np.sqrt(np.maximum(data.sigma ** 2 - data.model_sd ** 2,
                                    (1e-6 * data.sigma) ** 2))
@@ -233,6 +249,17 @@ class _Discrepancy:
     @property
     def size(self) -> int:
         return len(self.prior)
+
+    def start(self, given) -> np.ndarray:
+        """The offsets (C m,) from ``given`` = ``(conditions, values (C', m))`` (a fit's
+        :attr:`FleetFit.offsets`), matched by condition; 0 where ``given`` lacks one."""
+        b = np.zeros((len(self.conditions), self.sigma.shape[1]))
+        if given is not None:
+            at = {int(c): i for i, c in enumerate(given[0])}
+            for i, c in enumerate(self.conditions):
+                if int(c) in at:
+                    b[i] = given[1][at[int(c)]]
+        return b.ravel()
 
     def offsets(self, b) -> np.ndarray:
         """``b`` (C m,) at every sample: (N, m)."""
@@ -298,12 +325,16 @@ def _pushed_out(value, direction, lower, upper) -> np.ndarray:
 
 
 def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
-              s_theta: float = S_THETA, max_iter: int = MAX_ITER, x0=None) -> FleetFit:
+              s_theta: float = S_THETA, max_iter: int = MAX_ITER, x0=None,
+              discrepancy0=None, hold_discrepancy: bool = False) -> FleetFit:
     """Minimise ``L`` (module docstring) over ``phi[shared.free]`` and every engine's
     ``delta`` (and, with the model error shared, the offsets ``b``); ``model`` a
     :class:`calibration.discrepancy.candidates.CandidateModel`. The other entries of ``phi``
     stay at ``phi0`` (``Shared.none()``: the engines only, under an adaptation fitted on
-    others)."""
+    others). With the model error shared, ``b`` starts at ``discrepancy0`` (another fit's
+    :attr:`FleetFit.offsets`, matched by condition; 0 where it has none) and, with
+    ``hold_discrepancy``, stays there (held-out engines under the offsets the other engines
+    gave: the model's error at a condition is the same for every engine)."""
     k = len(THETA_NAMES)
     phi = np.zeros(model.n_phi) if phi0 is None else np.array(phi0, float)
     delta = np.zeros((data.n_units, k)) if delta0 is None else np.array(delta0, float)
@@ -311,16 +342,20 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
     p = len(free)
     starts = np.searchsorted(data.unit, np.arange(data.n_units))
     disc = _Discrepancy.of(data)
-    if disc is None:
+    held = None if disc is None else disc.start(discrepancy0)
+    if disc is None or hold_discrepancy:
         lik, extra = data, None
         prior, lower, upper = shared.prior, shared.lower, shared.upper
+        if disc is not None:  # the offsets held: the readings shifted, the noise alone
+            lik = replace(data, sigma=disc.sigma, y=data.y - disc.offsets(held))
+        z = phi[free].copy()
     else:
         lik, extra = replace(data, sigma=disc.sigma), disc.jacobian()
         unbounded = np.full(disc.size, np.inf)
         prior = np.concatenate([shared.prior, disc.prior])
         lower = np.concatenate([shared.lower, -unbounded])
         upper = np.concatenate([shared.upper, unbounded])
-    z = np.concatenate([phi[free], np.zeros(len(prior) - p)])
+        z = np.concatenate([phi[free], held])
 
     def at(zz):
         ph = phi.copy()
@@ -328,7 +363,7 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
         return ph
 
     def shifted(zz):
-        return lik if disc is None else replace(lik, y=lik.y - disc.offsets(zz[p:]))
+        return lik if extra is None else replace(lik, y=lik.y - disc.offsets(zz[p:]))
 
     def cost_of(e, dl, zz):
         return 0.5 * float(np.sum(e ** 2) + np.sum((dl / s_theta) ** 2)
@@ -379,9 +414,10 @@ def fit_fleet(model, data: FleetData, shared: Shared, phi0=None, delta0=None,
         if len(z) else np.zeros((0, 0))
     if disc is not None:  # the model's own residual (b left out), whitened by the whole std
         e = np.where(ok[:, None], (data.y - ev.y) / data.sigma, 0.0)
+    offsets = None if disc is None else \
+        (held if extra is None else z[p:]).reshape(len(disc.conditions), -1)
     return FleetFit(at(z), delta, border_cov[:p, :p], e, ev.y, ok, cost, shared, history,
-                    ev.x, health_cov, health_gain, s_theta,
-                    None if disc is None else z[p:].reshape(len(disc.conditions), -1),
+                    ev.x, health_cov, health_gain, s_theta, offsets,
                     None if disc is None else disc.conditions, border_cov)
 
 
@@ -417,10 +453,14 @@ def mean_prediction_std(fit: FleetFit, ev, data: FleetData, engine, usable) -> n
     rows = np.flatnonzero(usable)
     if not len(rows):
         return np.full(len(data.channels), np.nan)
+    border = fit.health_gain.shape[2]
+    if border > len(fit.shared.free) and np.isin(data.condition[rows],
+                                                 fit.discrepancy_conditions).any():
+        raise ValueError("mean_prediction_std: the fit's offsets were fitted at these "
+                         "samples' condition; it predicts a condition the fit did not see")
     n_rows = len(rows)
     k = len(THETA_NAMES)
     Jd = ev.d_theta[rows]
-    border = fit.health_gain.shape[2]
     Jp = np.zeros((n_rows, len(data.channels), border))
     Jp[:, :, :len(fit.shared.free)] = ev.d_phi[rows][:, :, fit.shared.free]
     eng = np.asarray(engine)[data.unit[rows]]

@@ -129,7 +129,8 @@ def condition_out(model, data: FleetData, shared: Shared, start: FleetFit) -> Ou
         train = data.subset(~held)
         # engines seen at the other conditions keep their rows' order in both subsets
         fit = fit_fleet(model, train, shared, start.phi, start.delta[np.isin(
-            np.arange(data.n_units), np.unique(data.unit[~held]))])
+            np.arange(data.n_units), np.unique(data.unit[~held]))],
+            discrepancy0=start.offsets)
         test = data.subset(held)
         pos = {u: i for i, u in enumerate(train.units)}
         row = np.array([pos.get(u, -1) for u in test.units])
@@ -197,7 +198,8 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
     chosen: list = [c.name for c in groups if c.registry_name == LEVEL_GROUP]
     if chosen:
         sh = shared_of(groups, chosen)
-        fit = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x)
+        fit = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x,
+                        discrepancy0=fit.offsets)
         oos = condition_out(model, data, sh, fit)
         say(f"levels ({', '.join(chosen)}): chi2 in {fit.chi2_per_sample():.3g}, out of "
             f"sample {oos.chi2_out:.3g}, worst condition {oos.worst:.3g}")
@@ -209,13 +211,15 @@ def select(model, data: FleetData, groups, log=None, max_steps: int = 8,
             if c.name in chosen:
                 continue
             trial = fit_fleet(model, data, shared_of(groups, [*chosen, c.name]), fit.phi,
-                              fit.delta, max_iter=SCREEN_ITER, x0=fit.x)
+                              fit.delta, max_iter=SCREEN_ITER, x0=fit.x,
+                              discrepancy0=fit.offsets)
             ranked.append((trial.cost, c.name))
         ranked.sort()
         best = None
         for _, name in ranked[:judge]:
             sh = shared_of(groups, [*chosen, name])
-            full = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x)
+            full = fit_fleet(model, data, sh, fit.phi, fit.delta, x0=fit.x,
+                             discrepancy0=fit.offsets)
             o = condition_out(model, data, sh, full)
             lost = sum(o.unusable.values())
             say(f"  {name}: chi2 in {full.chi2_per_sample():.3g}, out of sample "
@@ -246,7 +250,8 @@ def engines_out(model, data: FleetData, shared: Shared, start: FleetFit, folds: 
                 seed: int = 0) -> float:
     """Mean squared whitened residual of held-out engines (module docstring): ``folds``
     folds of engines drawn with ``seed``; the shared parameters fitted on the other folds
-    (warm-started at ``start``), each held-out engine's health fitted with them fixed."""
+    (warm-started at ``start``), each held-out engine's health fitted with them fixed (and,
+    with the model error shared, with the other folds' offsets)."""
     rng = np.random.default_rng(seed)
     order = rng.permutation(data.n_units)
     sq, n = 0.0, 0
@@ -255,9 +260,12 @@ def engines_out(model, data: FleetData, shared: Shared, start: FleetFit, folds: 
         held = np.isin(data.unit, out_units)
         train = data.subset(~held)
         keep = np.setdiff1d(np.arange(data.n_units), out_units)
-        fit = fit_fleet(model, train, shared, start.phi, start.delta[keep])
+        fit = fit_fleet(model, train, shared, start.phi, start.delta[keep],
+                        discrepancy0=start.offsets)
         test = data.subset(held)
-        own = fit_fleet(model, test, Shared.none(), fit.phi)
+        # the model's error at a condition is every engine's: a shared one stays as fitted
+        own = fit_fleet(model, test, Shared.none(), fit.phi, discrepancy0=fit.offsets,
+                        hold_discrepancy=True)
         e = own.residual[own.converged]
         sq += float(np.sum(e ** 2))
         n += e.size
