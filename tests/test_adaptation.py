@@ -289,7 +289,7 @@ def test_a_condition_the_model_cannot_evaluate_is_the_worst_not_left_out(monkeyp
     monkeypatch.setattr(selection, "evaluate", fake_evaluate)
     monkeypatch.setattr(selection, "mean_prediction_std",
                         lambda fit, ev, test, row, ok: np.ones(len(CHANNELS)))
-    start = SimpleNamespace(phi=np.zeros(1), delta=np.zeros((data.n_units, k)))
+    start = SimpleNamespace(phi=np.zeros(1), delta=np.zeros((data.n_units, k)), offsets=None)
     o = selection.condition_out(None, data, Shared.none(), start)
     assert np.isinf(o.chi2[2]) and np.isinf(o.worst) and np.isinf(o.chi2_out)
     assert o.unusable[2] == int((data.condition == 2).sum()) and o.unusable[1] == 0
