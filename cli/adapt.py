@@ -43,11 +43,12 @@ def adapt(
         "--model-error", help="The model's own error, a relative std added to each sample's "
         "noise (default 0.001, calibration.adaptation.data.MODEL_ERROR; 0: the noise alone).",
         min=0.0)] = None,
-    model_error_shared: Annotated[bool, typer.Option(
-        "--model-error-shared", help="Treat the model's own error as the same for every "
-        "sample at one operating condition (one offset per condition and channel, with the "
-        "model error as its prior; Kennedy & O'Hagan) rather than as independent noise of "
-        "each sample (the default).")] = False,
+    model_error_shared: Annotated[bool | None, typer.Option(
+        "--model-error-shared/--model-error-independent", help="The model's own error is "
+        "the same for every sample at one operating condition (one offset per condition and "
+        "channel, with the model error as its prior; Kennedy & O'Hagan; the default when "
+        "the model error is above 0), or independent noise of each sample (as the FD002 "
+        "adaptation ccd7e93d was fitted).", show_default=False)] = None,
     judge: Annotated[int, typer.Option(
         "--judge", help="Candidates judged with each condition left out per step, the best "
         "in sample first (default 3, calibration.adaptation.selection.TOP).", min=1)] = 3,

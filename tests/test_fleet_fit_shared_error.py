@@ -210,8 +210,14 @@ def test_adapt_with_the_model_error_shared_records_it_and_the_fitted_offsets():
     fit, _ = assess(df, rec, model=model)
     assert fit.discrepancy is not None
     np.testing.assert_allclose(fit.phi, res.selection.fit.phi, atol=1e-6)
-    independent = adapt(df, channels, ("design_scaling",), model=model, model_error=0.002)
+    independent = adapt(df, channels, ("design_scaling",), model=model, model_error=0.002,
+                        model_error_shared=False)
     assert independent.record()["selection"]["discrepancy_pct"]["after"] is None
+    assert independent.record()["data"]["model_error_shared"] is False
+    # shared is the default whenever there is a model error; with none there is nothing
+    # to share, and only asking for it explicitly is refused
+    assert fleet_data(df, channels, model_error=0.002)[0].shared_error
+    assert not fleet_data(df, channels, model_error=0.0)[0].shared_error
 
 
 def test_held_out_engines_keep_the_offsets_the_other_engines_gave():

@@ -164,13 +164,14 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
           early_cycles: int = EARLY_CYCLES, units=None, model=None, log=None,
           source: str = "data", engine_folds: int = 3, seed: int = 0,
           model_error: float = MODEL_ERROR, judge: int = TOP,
-          model_error_shared: bool = False) -> Adaptation:
+          model_error_shared: bool | None = None) -> Adaptation:
     """Adapt the engine model to the fleet in ``df`` (package docstring). ``candidates``:
     registry names of :mod:`.groups` (default all); ``model``: a prebuilt
     :class:`~calibration.discrepancy.candidates.CandidateModel` whose candidates include
     these (:func:`prebuilt_groups`: one model for several adaptations);
     ``model_error``: the model's relative error in each sample's std (:mod:`.data`),
-    shared by each condition's samples with ``model_error_shared`` (:mod:`.fleet_fit`);
+    shared by each condition's samples unless ``model_error_shared`` is False (None: the
+    default of :func:`.data.fleet_data`; :mod:`.fleet_fit`);
     ``judge``: candidates judged out of sample per step (:data:`.selection.TOP`)."""
     from calibration.discrepancy.candidates import CandidateModel
 
@@ -194,7 +195,7 @@ def adapt(df: pd.DataFrame, channels=DEFAULT_CHANNELS, candidates=None,
     info = {"path": source, "fingerprint": rows_fingerprint(early), "units": data.n_units,
             "unit_list": list(data.units), "samples": len(data.y),
             "early_cycles": early_cycles, "model_error": model_error,
-            "model_error_shared": model_error_shared, "judge": judge,
+            "model_error_shared": data.shared_error, "judge": judge,
             "candidates": sorted({group_name(g) for g in groups}),
             "engine_folds": engine_folds, "seed": seed}
     return Adaptation(sel, data, noise, groups, before, after, time.perf_counter() - t0, info)

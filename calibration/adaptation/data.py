@@ -23,10 +23,11 @@ condition left out (docs/adaptation.md). A fleet simulated by the model itself h
 error: pass ``model_error=0`` there.
 
 The model error is the same for every sample at one operating condition (the model's mismatch
-there does not change from one reading to the next). ``shared_model_error=True`` makes the
-fleet fit treat it so, one unknown offset per condition and channel with this prior
-(:mod:`.fleet_fit`, ``FleetData.shared_error``); the default counts it as independent noise of
-every sample, as the committed FD002 adaptation was fitted.
+there does not change from one reading to the next), and the fleet fit treats it so by
+default: one unknown offset per condition and channel with this prior (:mod:`.fleet_fit`,
+``FleetData.shared_error``; the default since 2026-11-30, when the FD002 adaptation fitted so
+met the rule fixed before it ran, docs/adaptation.md). ``shared_model_error=False`` counts it
+as independent noise of every sample, as the FD002 adaptation ccd7e93d was fitted.
 """
 
 from __future__ import annotations
@@ -51,11 +52,12 @@ MODEL_ERROR = 0.001
 
 def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = EARLY_CYCLES,
                units=None, condition: str = "condition", source: str = "data",
-               model_error: float = MODEL_ERROR, shared_model_error: bool = False,
+               model_error: float = MODEL_ERROR, shared_model_error: bool | None = None,
                ) -> tuple[FleetData, pd.DataFrame]:
     """``(FleetData, noise table)`` of the early-life rows of ``units`` (default all); each
     sample's std the noise and ``model_error`` combined, the model error shared by each
-    condition's samples with ``shared_model_error`` (module docstring)."""
+    condition's samples unless ``shared_model_error`` is False (None: shared whenever there is
+    a model error; module docstring)."""
     model_error = check_model_error(model_error)
     if shared_model_error and not model_error:
         raise InputError("--model-error-shared: the model error is 0, so there is nothing to "
@@ -96,5 +98,5 @@ def fleet_data(df: pd.DataFrame, channels=DEFAULT_CHANNELS, early_cycles: int = 
                      sigma, unit.astype(int), tuple(int(u) for u in ids), cond.astype(int),
                      early["cycle"].to_numpy(), tuple(channels),
                      model_error * np.abs(level) if model_error else None,
-                     shared_model_error)
+                     bool(model_error) if shared_model_error is None else shared_model_error)
     return data, noise

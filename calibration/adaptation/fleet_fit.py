@@ -55,12 +55,13 @@ samples of one condition and channel (``noise^2 I + s^2 1 1^T``). The fit carrie
 else as before: the residual, prediction and every error are the model's own (``b`` left
 out), whitened by the combined std; ``cov`` is ``phi``'s posterior with the health and ``b``
 integrated out. A condition the fit did not see has no ``b``: its prediction is the model's,
-uncertain by ``s`` (:func:`mean_prediction_std`). The adaptation default treats the error as
-independent (the committed FD002 adaptation was fitted so); ``hyprog adapt
---model-error-shared`` uses this one. Within a condition the samples' spread (between
-engines, with the settings' jitter) is then weighed by the noise alone, where a channel
-written almost without noise (C-MAPSS's ``Nf``, ``P15``) weighs most: the caveat of the noise
-alone (:mod:`.data`), now within each condition rather than between conditions.
+uncertain by ``s`` (:func:`mean_prediction_std`). The adaptation's default since 2026-11-30
+(:func:`calibration.adaptation.data.fleet_data`; ``hyprog adapt --model-error-independent``
+counts the error per sample, as the FD002 adaptation ccd7e93d was fitted). Within a
+condition the samples' spread (between engines, with the settings' jitter) is then weighed
+by the noise alone, where a channel written almost without noise (C-MAPSS's ``Nf``, ``P15``)
+weighs most: the caveat of the noise alone (:mod:`.data`), now within each condition rather
+than between conditions.
 """
 
 from __future__ import annotations
