@@ -14,27 +14,6 @@ from engine_model.physics.atmosphere import t2_from_flight
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: The test files that take longest, heaviest first (their summed test times in a full run
-#: of 2026-11-30 on 2 workers: 259, 131, 118, 79, 73, 71, 70, 45 and 41 s of the suite's
-#: 1,273). With ``--dist=loadfile`` each file runs on one worker, and with
-#: ``--no-loadscope-reorder`` (pyproject's addopts) the workers take the files in the
-#: collection's order, which :func:`pytest_collection_modifyitems` puts these first: the
-#: longest start first and the files handed out last are short (longest processing time
-#: first; Graham, "Bounds on multiprocessing timing anomalies", SIAM J. Appl. Math. 17, 1969).
-#: xdist's own reordering sorts files by their number of tests, which handed out the
-#: one-test, one-minute ``test_pipeline_augment.py`` among the last.
-HEAVY_FIRST = ("test_discrepancy.py", "test_pipeline.py", "test_adaptation.py",
-               "test_pipeline_augment.py", "test_interrupts_prognostics.py",
-               "test_docs_examples.py", "test_calibration_fleet.py", "test_calibration.py",
-               "test_mhe.py")
-
-
-def pytest_collection_modifyitems(session, config, items):
-    """The files of :data:`HEAVY_FIRST` first, in its order; every other file after them in
-    the collection's order, and each file's tests in theirs (a stable sort)."""
-    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
-
 
 def load_script(path: Path, name: str):
     """A script of the repository that is not a package module (a benchmark, a docs helper)
