@@ -5,7 +5,8 @@ it changes: the model's error per condition, the health of new engines, FD001's 
         [--results benchmarks/results/adaptation]
 
 1. ``hyprog data import-cmapss train_FD002.txt`` and ``hyprog adapt`` (every candidate, early
-   life = cycles 1-20 of every engine) into ``--work`` (reused when there): the record's
+   life = cycles 1-20 of every engine, :data:`ADAPT_OPTIONS`) into ``--work`` (reused when
+   there): the record's
    errors per condition and channel before and after, in sample and with the condition left
    out, and the chi-square per sample and channel in sample, condition left out and engines
    left out; each condition's error left out over its std (:func:`z_tables`);
@@ -51,6 +52,11 @@ from common import file_sha, hyprog, imported  # noqa: E402
 #: The five health parameters FD001's eight sensors observe together (a sixth, LPT flow, is
 #: reported unobservable by ``hyprog calibrate``).
 FIVE = ("fan_eff_mod", "HPC_eff_mod", "HPC_flow_mod", "HPT_eff_mod", "LPT_eff_mod")
+#: ``hyprog adapt``'s options for the adapted model when ``--work`` has none: those of the
+#: adopted model (2026-11-30, ffda0e17: the flow channels fitted too, six candidates judged
+#: per step, the model error shared by each condition, ``hyprog adapt``'s default;
+#: docs/adaptation.md). The committed ``adaptation.md`` of ccd7e93d was made with none.
+ADAPT_OPTIONS = ("--channels", "T24,T30,T50,P15,P30,Nf,Nc,BPR,W31,W32", "--judge", "6")
 EARLY = 20
 LATE = 10
 
@@ -253,7 +259,7 @@ def main(argv=None) -> int:
     adapted = args.work / "fd002-adapted.json"
     if not adapted.exists():
         t0 = time.perf_counter()
-        hyprog("adapt", fd002, "--out", adapted, quiet=True)
+        hyprog("adapt", fd002, "--out", adapted, *ADAPT_OPTIONS, quiet=True)
         print(f"adapted in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     if 1 in sections:
         report += section_1(json.loads(adapted.read_text()), fd002)
